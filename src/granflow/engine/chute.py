@@ -1,0 +1,223 @@
+"""Chute set-up: rough-base preparation, flow insertion and the periodic inclined chute.
+
+Implements the protocol of Weinhart et al. (2012) §5 (physics.md §3):
+
+* **rough base** — fill a horizontal periodic box with particles of diameter lambda, let them
+  settle to a static layer ``base_layers`` (paper: 12) diameters thick, keep the particles with
+  z in [base_layers - 2.7, base_layers - 1] lambda (paper: [9.3, 11] lambda), delete the rest,
+  shift down by (base_layers - 1) lambda and freeze them.  lambda = 0 is a flat frictional wall
+  at z = 0.  Settling uses a soft, strongly damped preparation species (the frozen positions
+  are all that is kept; the flow never feels that species).
+* **flow insertion** — random positions in [0, Lx] x [0, Ly] x [0, I], I = H initially;
+  overlapping trials are rejected and I grows by 0.01 after each rejection (initial packing
+  ~0.3).  The number of flow particles is N = H Lx Ly (monodisperse d = 1: "filling height" H
+  is the flow volume / (Lx Ly pi/6)), for mixtures N_s, N_l follow from phi0.
+* **gravity** tilted by theta: g = (sin theta, 0, -cos theta).
+
+Everything random is drawn from ``numpy.random.default_rng(seed)``: the same configuration and
+seed give the same particles, bit for bit.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..units import RHO_PARTICLE
+from .lib.kernels import insert_random
+from .species import ContactSpecies, InteractionTable, check_range
+from .system import ParticleSystem
+
+log = logging.getLogger(__name__)
+
+#: Packing fraction assumed when sizing the base-preparation fill.
+BASE_FILL_PACKING = 0.6
+
+
+@dataclass
+class BaseConfig:
+    """Rough-base preparation parameters (physics.md §3)."""
+
+    lam: float = 1.0                 # base particle diameter / flow particle diameter (0 = flat wall)
+    Lx: float = 20.0
+    Ly: float = 10.0
+    base_layers: float = 12.0        # settled layer thickness in base diameters (paper: 12)
+    seed: int = 1
+    settle_time: float = 30.0        # maximum settling time (units sqrt(lambda/g) x sqrt(lambda))
+    prep_t_c: float = 0.02           # soft preparation species: collision time (x sqrt(lambda))
+    prep_e: float = 0.2              # and restitution (strongly damped: settles quickly)
+
+    def validate(self):
+        check_range("lam", self.lam, 0.0, 10.0)
+        check_range("Lx", self.Lx, 0.0, 1e4, lo_open=True)
+        check_range("Ly", self.Ly, 0.0, 1e4, lo_open=True)
+        check_range("base_layers", self.base_layers, 3.0, 100.0)
+        check_range("settle_time", self.settle_time, 0.0, 1e5, lo_open=True)
+        if self.lam > 0 and (self.Lx < 3 * self.lam or self.Ly < 3 * self.lam):
+            raise ValueError(f"Lx, Ly = {self.Lx}, {self.Ly} must be at least 3 lambda = {3 * self.lam}")
+        return self
+
+
+def prepare_rough_base(cfg: BaseConfig) -> np.ndarray:
+    """Positions (M, 3) of the frozen rough-base particles, top of the kept band at z = 0.
+
+    Returns an empty array for lambda = 0 (flat wall).
+    """
+    cfg.validate()
+    lam = cfg.lam
+    if lam == 0:
+        return np.zeros((0, 3))
+    rng = np.random.default_rng(cfg.seed)
+    area = cfg.Lx * cfg.Ly
+    n = int(math.ceil(cfg.base_layers * lam * area * BASE_FILL_PACKING / (math.pi / 6 * lam**3)))
+    radius = np.full(n, 0.5 * lam)
+    pos = _insert(rng, np.zeros((0, 3)), np.zeros(0), radius, cfg.Lx, cfg.Ly,
+                  z_lo=0.5 * lam, height0=2.0 * cfg.base_layers * lam)
+    tc = cfg.prep_t_c * math.sqrt(lam)
+    tab = InteractionTable(["base", "wall"], [lam, 0.0])
+    prep = ContactSpecies(t_c=tc, e=cfg.prep_e, mu_c=0.5)
+    for a in ("base", "wall"):
+        for b in ("base", "wall"):
+            tab.set(a, b, prep)
+    sys_ = ParticleSystem(cfg.Lx, cfg.Ly, tab, gvec=(0.0, 0.0, -1.0), use_wall=True, wall_type=1,
+                          skin=0.2 * lam)
+    sys_.set_particles(pos, np.full(n, lam), density=RHO_PARTICLE, ptype=0, fixed=False)
+    sys_.initialize()
+    chunk = max(1, int(round(0.5 * math.sqrt(lam) / sys_.dt)))
+    t_end = cfg.settle_time * math.sqrt(lam)
+    e_ref = n * lam**3  # energy scale m g d of the layer
+    while sys_.time < t_end:
+        sys_.step(chunk)
+        if sys_.time > 3.0 * math.sqrt(lam) and sys_.energies()["kinetic"] < 1e-5 * e_ref:
+            break
+    log.info("base preparation: lambda=%g, %d particles settled for t=%.2f (E_kin=%.3g)",
+             lam, n, sys_.time, sys_.energies()["kinetic"])
+    z = sys_.pos[:, 2]
+    keep = (z >= (cfg.base_layers - 2.7) * lam) & (z <= (cfg.base_layers - 1.0) * lam)
+    base = sys_.pos[keep].copy()
+    base[:, 2] -= (cfg.base_layers - 1.0) * lam
+    order = np.lexsort((base[:, 0], base[:, 1], base[:, 2]))
+    return base[order]
+
+
+def _insert(rng, existing_pos, existing_radius, radius, Lx, Ly, z_lo, height0, grow=0.01):
+    """Seeded random sequential insertion (draws more random numbers until it fits)."""
+    nbatch = max(3 * 64 * len(radius), 3000)
+    uniforms = rng.random(nbatch)
+    while True:
+        pos, used, _ = insert_random(existing_pos, existing_radius, radius, Lx, Ly, z_lo,
+                                     height0, grow, uniforms)
+        if used >= 0:
+            return pos
+        uniforms = np.concatenate([uniforms, rng.random(len(uniforms))])
+
+
+@dataclass
+class ChuteConfig:
+    """One periodic chute run (physics.md §1, §3); defaults are the paper's reference values."""
+
+    theta: float = 24.0              # inclination, degrees
+    H: float = 10.0                  # filling height (flow volume / (Lx Ly pi/6))
+    lam: float = 1.0                 # base roughness: base / flow particle diameter
+    Lx: float = 20.0                 # box length downslope
+    Ly: float = 10.0                 # box width
+    seed: int = 1
+    flow: ContactSpecies = field(default_factory=ContactSpecies)       # flow-flow interaction
+    base: ContactSpecies | None = None                                 # flow-base (default = flow)
+    steps_per_collision: float = 50.0
+    skin: float = 0.2
+    # bidisperse mixtures (segregation runs): sigma = d_small / d_large; phi0 = small volume fraction
+    sigma: float = 1.0
+    phi0: float = 1.0
+    d_small: float = 1.0
+
+    def validate(self):
+        check_range("theta", self.theta, 0.0, 90.0, lo_open=True, hi_open=True)
+        check_range("H", self.H, 0.0, 1e4, lo_open=True)
+        check_range("lam", self.lam, 0.0, 10.0)
+        check_range("Lx", self.Lx, 0.0, 1e4, lo_open=True)
+        check_range("Ly", self.Ly, 0.0, 1e4, lo_open=True)
+        check_range("sigma", self.sigma, 0.0, 1.0, lo_open=True)
+        check_range("phi0", self.phi0, 0.0, 1.0)
+        check_range("steps_per_collision", self.steps_per_collision, 10.0, 1e6)
+        check_range("skin", self.skin, 0.0, 10.0, lo_open=True)
+        check_range("d_small", self.d_small, 0.0, 100.0, lo_open=True)
+        return self
+
+    @property
+    def gravity(self):
+        t = math.radians(self.theta)
+        return (math.sin(t), 0.0, -math.cos(t))
+
+    def flow_particles(self):
+        """Diameters and species index (0 = small, 1 = large) of the flow particles."""
+        area = self.Lx * self.Ly
+        d_s = self.d_small
+        if self.sigma == 1.0 or self.phi0 >= 1.0:
+            n = int(round(self.H * area / d_s**3))
+            return np.full(n, d_s), np.zeros(n, np.int64)
+        d_l = d_s / self.sigma
+        v_total = self.H * area * math.pi / 6.0
+        n_s = int(round(self.phi0 * v_total / (math.pi / 6 * d_s**3)))
+        n_l = int(round((1 - self.phi0) * v_total / (math.pi / 6 * d_l**3)))
+        d = np.concatenate([np.full(n_s, d_s), np.full(n_l, d_l)])
+        return d, np.concatenate([np.zeros(n_s, np.int64), np.ones(n_l, np.int64)])
+
+    def interactions(self) -> InteractionTable:
+        base_sp = self.base if self.base is not None else self.flow
+        bidisperse = not (self.sigma == 1.0 or self.phi0 >= 1.0)
+        names = ["small", "large"] if bidisperse else ["flow"]
+        diams = [self.d_small, self.d_small / self.sigma] if bidisperse else [self.d_small]
+        wall_d = self.lam if self.lam > 0 else 0.0
+        tab = InteractionTable(names + ["base"], diams + [wall_d])
+        for a in names:
+            for b in names:
+                tab.set(a, b, self.flow)
+            tab.set(a, "base", base_sp)
+        tab.set("base", "base", base_sp)
+        return tab
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        return d
+
+
+def build_chute(cfg: ChuteConfig, base_positions: np.ndarray | None = None) -> ParticleSystem:
+    """Create the chute system: base (prepared or given), inserted flow particles, tilted gravity."""
+    cfg.validate()
+    if base_positions is None:
+        base_positions = prepare_rough_base(BaseConfig(lam=cfg.lam, Lx=cfg.Lx, Ly=cfg.Ly, seed=cfg.seed))
+    base_positions = np.asarray(base_positions, dtype=np.float64).reshape(-1, 3)
+    if cfg.lam == 0 and len(base_positions):
+        raise ValueError("base_positions must be empty for lam = 0 (flat wall)")
+    if cfg.lam > 0 and not len(base_positions):
+        raise ValueError(f"base_positions is empty but lam = {cfg.lam} > 0 needs a rough base")
+    rng = np.random.default_rng([cfg.seed, 7])
+    d_flow, species = cfg.flow_particles()
+    # insert large particles first (they are the hardest to place), then shuffle nothing: order
+    # within the flow stays small-then-large for species-resolved output
+    order = np.argsort(-d_flow, kind="stable")
+    base_r = np.full(len(base_positions), 0.5 * cfg.lam)
+    z_lo = 0.0 if cfg.lam > 0 else 0.5 * float(d_flow.max())
+    pos_sorted = _insert(rng, base_positions, base_r, 0.5 * d_flow[order], cfg.Lx, cfg.Ly,
+                         z_lo=z_lo, height0=cfg.H)
+    pos_flow = np.empty_like(pos_sorted)
+    pos_flow[order] = pos_sorted
+    tab = cfg.interactions()
+    base_type = len(tab.type_names) - 1
+    sys_ = ParticleSystem(cfg.Lx, cfg.Ly, tab, gvec=cfg.gravity, skin=cfg.skin,
+                          use_wall=cfg.lam == 0, wall_type=base_type,
+                          steps_per_collision=cfg.steps_per_collision)
+    nb = len(base_positions)
+    pos = np.concatenate([pos_flow, base_positions])
+    diam = np.concatenate([d_flow, np.full(nb, cfg.lam)])
+    ptype = np.concatenate([species, np.full(nb, base_type, np.int64)])
+    fixed = np.concatenate([np.zeros(len(d_flow), bool), np.ones(nb, bool)])
+    sys_.set_particles(pos, diam, density=RHO_PARTICLE, ptype=ptype, fixed=fixed)
+    sys_.initialize()
+    log.info("chute: theta=%g H=%g lambda=%g: %d flow + %d base particles, dt=%.3g",
+             cfg.theta, cfg.H, cfg.lam, len(d_flow), nb, sys_.dt)
+    return sys_

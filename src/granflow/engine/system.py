@@ -1,0 +1,249 @@
+"""The particle system: state arrays, time stepping, energies, contacts and checkpoints.
+
+:class:`ParticleSystem` owns the complete dynamic state of a periodic-x,y, open-z system of
+spheres (Weinhart et al. 2012, §2 and §5): positions, velocities, angular velocities, forces and
+torques, the Verlet neighbour list and the per-contact history (tangential springs, maximum
+overlaps).  Fixed particles (the rough base) have infinite mass, feel no body force and never
+move.  Stepping is delegated to the numba kernels in :mod:`granflow.engine.lib.kernels`.
+
+Particle order convention: mobile (flow) particles first, fixed particles last, so that in every
+listed pair i < j a flow-base contact has the flow particle as i.
+
+The whole state round-trips through :meth:`ParticleSystem.state_dict` /
+:meth:`ParticleSystem.from_state_dict`, so that a resumed run continues bit for bit.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..provenance import atomic_write_bytes
+from .lib import kernels as K
+from .species import InteractionTable, check_range
+
+#: Maximum overlap allowed, as a fraction of the smaller diameter of the pair (issue guard).
+MAX_OVERLAP_FRACTION = 0.05
+#: Smallest number of time steps per collision accepted (guard against dt too large for t_c).
+MIN_STEPS_PER_COLLISION = 10
+
+
+class SimulationError(RuntimeError):
+    """Raised when a run becomes unphysical (NaN, excessive overlap) or is set up wrongly."""
+
+
+class ParticleSystem:
+    """A set of spheres in a periodic-x,y box with open z, gravity ``gvec`` and contact laws."""
+
+    _ARRAYS = ("pos", "vel", "omega", "force", "torque", "radius", "mass", "inertia", "ptype",
+               "fixed", "pi", "pj", "hist_t", "hist_dmax", "pair_out", "pos_ref", "wall_hist",
+               "wall_dmax", "wall_out", "gvec")
+
+    def __init__(self, Lx, Ly, interactions: InteractionTable, gvec=(0.0, 0.0, -1.0), dt=None,
+                 skin=0.2, use_wall=False, wall_type=None, steps_per_collision=50):
+        self.Lx = check_range("Lx", Lx, 0.0, math.inf, lo_open=True)
+        self.Ly = check_range("Ly", Ly, 0.0, math.inf, lo_open=True)
+        self.interactions = interactions
+        self.tables = interactions.arrays()
+        t_c = interactions.min_collision_time()
+        self.dt = float(dt) if dt is not None else t_c / steps_per_collision
+        if not (self.dt > 0) or self.dt > t_c / MIN_STEPS_PER_COLLISION:
+            raise SimulationError(
+                f"dt = {self.dt:g} is too large for the shortest collision time t_c = {t_c:g}: "
+                f"allowed (0, t_c/{MIN_STEPS_PER_COLLISION}] = (0, {t_c / MIN_STEPS_PER_COLLISION:g}]"
+            )
+        self.skin = check_range("skin", skin, 0.0, math.inf, lo_open=True)
+        self.gvec = np.asarray(gvec, dtype=np.float64)
+        self.use_wall = bool(use_wall)
+        self.wall_type = int(wall_type) if wall_type is not None else 0
+        self.time = 0.0
+        self.step_count = 0
+        self.n_rebuilds = 0
+        self.e_elastic = 0.0
+        self.max_overlap = 0.0
+        self._set_particles(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, np.int64),
+                            np.zeros(0, bool))
+
+    # ---------------------------------------------------------------- particles
+    def _set_particles(self, pos, diameter, density, ptype, fixed):
+        n = len(diameter)
+        self.pos = np.ascontiguousarray(pos, dtype=np.float64).reshape(n, 3)
+        self.vel = np.zeros((n, 3))
+        self.omega = np.zeros((n, 3))
+        self.force = np.zeros((n, 3))
+        self.torque = np.zeros((n, 3))
+        self.radius = 0.5 * np.asarray(diameter, dtype=np.float64)
+        self.mass = np.asarray(density, dtype=np.float64) * math.pi / 6.0 * (2 * self.radius) ** 3
+        self.inertia = 0.4 * self.mass * self.radius**2  # solid sphere: I = m d^2 / 10
+        self.ptype = np.asarray(ptype, dtype=np.int64)
+        self.fixed = np.asarray(fixed, dtype=bool)
+        self.wall_hist = np.zeros((n, 3))
+        self.wall_dmax = np.zeros(n)
+        self.wall_out = np.zeros((n, 12))
+        self.pi = np.zeros(0, np.int64)
+        self.pj = np.zeros(0, np.int64)
+        self.hist_t = np.zeros((0, 3))
+        self.hist_dmax = np.zeros(0)
+        self.pair_out = np.zeros((0, 12))
+        self.pos_ref = self.pos.copy()
+
+    def set_particles(self, pos, diameter, density=6.0 / math.pi, ptype=0, fixed=False):
+        """Replace all particles. Mobile particles must come before fixed ones."""
+        diameter = np.asarray(diameter, dtype=np.float64)
+        n = len(diameter)
+        density = np.broadcast_to(np.asarray(density, dtype=np.float64), (n,))
+        ptype = np.broadcast_to(np.asarray(ptype, dtype=np.int64), (n,))
+        fixed = np.broadcast_to(np.asarray(fixed, dtype=bool), (n,))
+        if n and np.any(np.diff(fixed.astype(int)) < 0):
+            raise ValueError("particles: mobile particles must precede fixed (base) particles")
+        if np.any(diameter <= 0):
+            raise ValueError("diameter: every particle diameter must be > 0")
+        if np.any(ptype < 0) or np.any(ptype >= len(self.interactions.type_names)):
+            raise ValueError(f"ptype: allowed 0..{len(self.interactions.type_names) - 1}")
+        self._set_particles(pos, diameter, density, ptype, fixed)
+        self.pos[:, 0] %= self.Lx
+        self.pos[:, 1] %= self.Ly
+
+    @property
+    def n(self) -> int:
+        return len(self.radius)
+
+    @property
+    def inv_mass(self):
+        return np.where(self.fixed, 0.0, 1.0 / np.where(self.mass > 0, self.mass, 1.0))
+
+    @property
+    def inv_inertia(self):
+        return np.where(self.fixed, 0.0, 1.0 / np.where(self.inertia > 0, self.inertia, 1.0))
+
+    @property
+    def cell_size(self) -> float:
+        return 2.0 * float(self.radius.max(initial=0.5)) + self.skin
+
+    # ---------------------------------------------------------------- stepping
+    def initialize(self):
+        """Build the neighbour list and the forces of the current state (no history update)."""
+        self._cache_inverse()
+        self.pi, self.pj = K.neighbour_pairs(self.pos, self.radius, self.fixed, self.Lx, self.Ly,
+                                             self.skin, self.cell_size)
+        self.hist_t = np.zeros((len(self.pi), 3))
+        self.hist_dmax = np.zeros(len(self.pi))
+        self.pair_out = np.zeros((len(self.pi), 12))
+        self.pos_ref = self.pos.copy()
+        self.e_elastic, self.max_overlap = K.compute_forces(
+            self.pos, self.vel, self.omega, self.radius, self._inv_mass, self.mass, self.ptype,
+            self.fixed, self.Lx, self.Ly, self.gvec, self.pi, self.pj, self.hist_t,
+            self.hist_dmax, self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax,
+            *self.tables, self.dt, False, self.pair_out, self.wall_out, self.force, self.torque)
+
+    def _cache_inverse(self):
+        self._inv_mass = self.inv_mass
+        self._inv_inertia = self.inv_inertia
+
+    def step(self, nsteps: int):
+        """Advance ``nsteps`` time steps; raise :class:`SimulationError` on NaN or overlap."""
+        if nsteps <= 0:
+            return
+        if not hasattr(self, "_inv_mass"):
+            self._cache_inverse()
+        max_allowed = MAX_OVERLAP_FRACTION * 2.0 * float(self.radius.min(initial=0.5))
+        (self.pi, self.pj, self.hist_t, self.hist_dmax, self.pair_out, e_el, max_ov, done, nreb,
+         status) = K.advance(
+            int(nsteps), self.pos, self.vel, self.omega, self.force, self.torque, self.radius,
+            self._inv_mass, self.mass, self._inv_inertia, self.ptype, self.fixed, self.Lx,
+            self.Ly, self.gvec, self.pi, self.pj, self.hist_t, self.hist_dmax, self.pos_ref,
+            self.skin, self.cell_size, self.use_wall, self.wall_type, self.wall_hist,
+            self.wall_dmax, *self.tables, self.dt, self.pair_out, self.wall_out, max_allowed)
+        self.step_count += int(done)
+        self.time = self.step_count * self.dt
+        self.n_rebuilds += int(nreb)
+        self.e_elastic = float(e_el)
+        self.max_overlap = float(max_ov)
+        if status == 1:
+            raise SimulationError(
+                f"non-finite forces (NaN/inf) at step {self.step_count}, t = {self.time:.6g}: "
+                "check the time step and the contact parameters")
+        if status == 2:
+            raise SimulationError(
+                f"overlap {max_ov:.4g} exceeds {MAX_OVERLAP_FRACTION:.0%} of the smallest diameter "
+                f"at step {self.step_count}, t = {self.time:.6g}: the particles are too soft for "
+                "the load (reduce t_c) or the time step is too large")
+
+    # ---------------------------------------------------------------- observables
+    def energies(self) -> dict:
+        """Kinetic (translational + rotational), elastic and gravitational energy.
+
+        The gravitational energy is the slope-normal part, sum m |g_z| z over mobile particles:
+        the downslope part is not defined in a box periodic in x.
+        """
+        if not hasattr(self, "_inv_mass"):
+            self._cache_inverse()
+        et, er = K.kinetic_energy(self.vel, self.omega, self.mass, self.inertia, self._inv_mass)
+        mobile = ~self.fixed
+        e_grav = float(np.sum(self.mass[mobile] * (-self.gvec[2]) * self.pos[mobile, 2]))
+        return {"kinetic": et + er, "kinetic_translational": et, "kinetic_rotational": er,
+                "elastic": self.e_elastic, "gravitational": e_grav}
+
+    def contacts(self) -> dict:
+        """Current contacts (for coarse-graining): i, j, force on i, r_i - r_j, contact point.
+
+        Flow-base contacts have the flow particle as i; flat-wall contacts have j = -1.
+        """
+        ci, cj, f, rij, cp = K.contact_list(self.pos, self.radius, self.Lx, self.Ly, self.pi,
+                                            self.pj, self.pair_out, self.use_wall, self.wall_out)
+        return {"contact_i": ci, "contact_j": cj, "contact_force": f, "contact_rij": rij,
+                "contact_point": cp}
+
+    # ---------------------------------------------------------------- checkpoints
+    def state_dict(self) -> dict:
+        state = {name: getattr(self, name) for name in self._ARRAYS}
+        meta = {
+            "Lx": self.Lx, "Ly": self.Ly, "dt": self.dt, "skin": self.skin,
+            "use_wall": self.use_wall, "wall_type": self.wall_type, "time": self.time,
+            "step_count": self.step_count, "n_rebuilds": self.n_rebuilds,
+            "e_elastic": self.e_elastic, "max_overlap": self.max_overlap,
+            "interactions": self.interactions.to_json_dict(),
+        }
+        state["meta_json"] = np.array(json.dumps(meta))
+        return state
+
+    @classmethod
+    def from_state_dict(cls, state) -> "ParticleSystem":
+        meta = json.loads(str(state["meta_json"]))
+        sys_ = cls(meta["Lx"], meta["Ly"], InteractionTable.from_json_dict(meta["interactions"]),
+                   gvec=np.asarray(state["gvec"]), dt=meta["dt"], skin=meta["skin"],
+                   use_wall=meta["use_wall"], wall_type=meta["wall_type"])
+        for name in cls._ARRAYS:
+            setattr(sys_, name, np.array(state[name]))
+        for key in ("time", "step_count", "n_rebuilds", "e_elastic", "max_overlap"):
+            setattr(sys_, key, meta[key])
+        sys_._cache_inverse()
+        return sys_
+
+    def save(self, path, extra: dict | None = None):
+        """Write the complete state (plus ``extra`` arrays) atomically as a .npz file."""
+        arrays = dict(self.state_dict())
+        for key, value in (extra or {}).items():
+            arrays["extra__" + key] = np.asarray(value)
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        atomic_write_bytes(path, buf.getvalue())
+
+    @classmethod
+    def load(cls, path):
+        """Read a state written by :meth:`save`; returns (system, extra dict)."""
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"state file {os.fspath(path)!r} does not exist")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                state = {k: data[k] for k in data.files}
+        except Exception as exc:  # zipfile/numpy errors on a truncated file
+            raise ValueError(f"state file {os.fspath(path)!r} is unreadable or truncated: {exc}") from exc
+        extra = {k[len("extra__"):]: v for k, v in state.items() if k.startswith("extra__")}
+        return cls.from_state_dict(state), extra

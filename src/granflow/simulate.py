@@ -1,0 +1,208 @@
+"""One chute job: parameter file -> validated configuration -> run -> atomic outputs.
+
+This is the orchestration layer used by the command line (``granflow simulate``) and by the
+Snakemake workflow.  It validates every parameter *before* any compute is spent (bad input names
+the field and its allowed range), builds the chute of Weinhart et al. (2012) §5 (or loads a
+prepared rough base), runs it with checkpoints (a killed job resumes where it stopped and ends
+with the same numbers), and writes
+
+* ``series.nc`` — the energy time series (E_kin, E_ela, E_grav, E_kin/E_ela, mean velocity) with
+  CF attributes and provenance;
+* ``final_state.npz`` — the complete final particle state (restartable).
+
+All outputs are written atomically; the checkpoint is removed only after they exist.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from . import units as U
+from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_base
+from .engine.run import ChuteRun
+from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
+from .provenance import atomic_to_netcdf, atomic_write_bytes, provenance_attrs
+
+log = logging.getLogger(__name__)
+
+#: Every accepted key of a run parameter file, with its meaning (defaults: the paper's values).
+PARAMETERS = {
+    "theta": "inclination in degrees, (0, 90)",
+    "H": "filling height (flow volume / (Lx Ly pi/6)), > 0",
+    "lam": "base roughness lambda = base / flow particle diameter, [0, 10]; 0 = flat wall",
+    "Lx": "box length downslope, > 0", "Ly": "box width, > 0",
+    "seed": "random seed (base and flow insertion), integer >= 0",
+    "t_end": "hard cap on the simulated time, > 0 (paper: 2000)",
+    "contact_law": "linear | hertz | plastic (flow-flow and flow-base)",
+    "t_c": "collision time, > 0 (paper 0.005)", "e": "restitution, (0, 1] (paper 0.88)",
+    "mu_c": "contact friction, >= 0 (paper 0.5)",
+    "kt_over_kn": "tangential/normal stiffness (paper 2/7)",
+    "gt_over_gn": "tangential/normal damping (paper 1)",
+    "v_ref": "Hertz reference impact velocity, > 0",
+    "base_t_c": "flow-base collision time (default t_c)", "base_e": "flow-base restitution (default e)",
+    "base_mu_c": "flow-base friction (default mu_c)",
+    "steps_per_collision": "t_c / dt, >= 10 (paper 50)", "skin": "Verlet skin, > 0",
+    "sigma": "size ratio d_small/d_large, (0, 1]", "phi0": "small-particle volume fraction, [0, 1]",
+    "base_layers": "settled base thickness in lambda, [3, 100] (paper 12)",
+    "sample_interval": "time between samples (default t_c/2)",
+    "checkpoint_every_s": "wall-clock seconds between checkpoints",
+}
+
+
+def validate_params(params: dict) -> dict:
+    """Check names and ranges of a run parameter mapping; return it with defaults filled in."""
+    if not isinstance(params, dict):
+        raise ValueError("run parameters must be a mapping of names to values")
+    unknown = sorted(set(params) - set(PARAMETERS))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {unknown}: allowed keys are {sorted(PARAMETERS)}")
+    p = dict(theta=24.0, H=10.0, lam=1.0, Lx=20.0, Ly=10.0, seed=1, t_end=2000.0,
+             contact_law="linear", t_c=REFERENCE["t_c"], e=REFERENCE["e"], mu_c=REFERENCE["mu_c"],
+             kt_over_kn=REFERENCE["kt_over_kn"], gt_over_gn=REFERENCE["gt_over_gn"], v_ref=1.0,
+             steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
+             sample_interval=None, checkpoint_every_s=60.0)
+    p.update(params)
+    for key in ("base_t_c", "base_e", "base_mu_c"):
+        p.setdefault(key, None)
+    check_range("theta", p["theta"], 0.0, 90.0, lo_open=True, hi_open=True)
+    check_range("H", p["H"], 0.0, 1e4, lo_open=True)
+    check_range("lam", p["lam"], 0.0, 10.0)
+    check_range("t_end", p["t_end"], 0.0, 1e7, lo_open=True)
+    check_range("seed", p["seed"], 0, 2**63 - 1)
+    if p["contact_law"] not in LAWS:
+        raise ValueError(f"contact_law = {p['contact_law']!r} is unknown: allowed {sorted(LAWS)}")
+    if p["sample_interval"] is not None:
+        check_range("sample_interval", p["sample_interval"], 0.0, 1e6, lo_open=True)
+    check_range("checkpoint_every_s", p["checkpoint_every_s"], 0.0, 1e7)
+    cfg = chute_config(p)
+    cfg.validate()
+    BaseConfig(lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"], base_layers=p["base_layers"]).validate()
+    return p
+
+
+def chute_config(p: dict) -> ChuteConfig:
+    flow = ContactSpecies(t_c=p["t_c"], e=p["e"], kt_over_kn=p["kt_over_kn"],
+                          gt_over_gn=p["gt_over_gn"], mu_c=p["mu_c"], law=p["contact_law"],
+                          v_ref=p["v_ref"])
+    base = ContactSpecies(
+        t_c=p["base_t_c"] if p.get("base_t_c") is not None else p["t_c"],
+        e=p["base_e"] if p.get("base_e") is not None else p["e"],
+        kt_over_kn=p["kt_over_kn"], gt_over_gn=p["gt_over_gn"],
+        mu_c=p["base_mu_c"] if p.get("base_mu_c") is not None else p["mu_c"],
+        law=p["contact_law"], v_ref=p["v_ref"])
+    return ChuteConfig(theta=p["theta"], H=p["H"], lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"],
+                       seed=int(p["seed"]), flow=flow, base=base,
+                       steps_per_collision=p["steps_per_collision"], skin=p["skin"],
+                       sigma=p["sigma"], phi0=p["phi0"])
+
+
+def load_params(path) -> dict:
+    """Read a YAML/JSON run parameter file and validate it."""
+    import yaml
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"parameter file {os.fspath(path)!r} does not exist")
+    with open(path) as fh:
+        data = yaml.safe_load(fh) or {}
+    return validate_params(data)
+
+
+def set_threads(threads: int | None):
+    """Pass the job's thread count to numba (Snakemake does not set NUMBA_NUM_THREADS)."""
+    if threads is None:
+        return
+    import numba
+
+    threads = int(check_range("threads", threads, 1, 1024))
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def prepare_base_file(lam, Lx, Ly, seed, out, base_layers=12.0, settle_time=30.0):
+    """Prepare a rough base and write its positions atomically to ``out`` (.npy)."""
+    cfg = BaseConfig(lam=lam, Lx=Lx, Ly=Ly, seed=seed, base_layers=base_layers,
+                     settle_time=settle_time).validate()
+    pos = prepare_rough_base(cfg)
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, pos)
+    atomic_write_bytes(out, buf.getvalue())
+    return pos
+
+
+def series_dataset(arrays: dict, attrs: dict):
+    """xarray Dataset of a run's time series with CF attributes (attached last)."""
+    import xarray as xr
+
+    t = arrays["time"]
+    ratio = np.divide(arrays["e_kin"], arrays["e_ela"], out=np.full_like(t, np.inf),
+                      where=arrays["e_ela"] > 0)
+    ds = xr.Dataset(
+        {
+            "e_kin": ("time", arrays["e_kin"]),
+            "e_ela": ("time", arrays["e_ela"]),
+            "e_grav": ("time", arrays["e_grav"]),
+            "energy_ratio": ("time", ratio),
+            "u_mean": ("time", arrays["u_mean"]),
+        },
+        coords={"time": t},
+    )
+    ds["time"].attrs = U.cf(U.TIME, "simulated time")
+    ds["e_kin"].attrs = U.cf(U.ENERGY, "kinetic energy (translational + rotational) of the flow")
+    ds["e_ela"].attrs = U.cf(U.ENERGY, "elastic energy stored in contacts")
+    ds["e_grav"].attrs = U.cf(U.ENERGY, "slope-normal gravitational energy sum m g cos(theta) z")
+    ds["energy_ratio"].attrs = U.cf(U.DIMENSIONLESS, "ratio of kinetic to elastic energy")
+    ds["u_mean"].attrs = U.cf(U.VELOCITY, "mean downslope velocity of the flow particles")
+    ds.attrs.update(attrs)
+    return ds
+
+
+def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
+             observers=(), progress=None) -> dict:
+    """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
+
+    Returns a summary dict (stop reason, final time, particle count, wall time).
+    """
+    import time as _time
+
+    p = validate_params(params)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    set_threads(threads)
+    cfg = chute_config(p)
+    ckpt = out_dir / "checkpoint.npz"
+    wall0 = _time.monotonic()
+    system = None
+    if not ckpt.exists():
+        if base_file is not None:
+            base = np.load(base_file)
+            if base.ndim != 2 or base.shape[1] != 3:
+                raise ValueError(f"base file {base_file!r} does not hold an (M, 3) position array")
+        else:
+            base = prepare_rough_base(BaseConfig(lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"],
+                                                 seed=int(p["seed"]), base_layers=p["base_layers"]))
+        system = build_chute(cfg, base_positions=base)
+    sample_every = None
+    if p["sample_interval"] is not None:
+        sample_every = max(1, int(round(p["sample_interval"] / (cfg.flow.t_c / cfg.steps_per_collision))))
+    run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, observers=observers,
+                   checkpoint=ckpt, checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
+    run.try_resume()
+    run.run()
+    attrs = provenance_attrs(config=p, **{k: v for k, v in p.items() if v is not None})
+    attrs.update(stop_reason=run.stop_reason, n_flow=int((~run.system.fixed).sum()),
+                 n_base=int(run.system.fixed.sum()), dt=run.system.dt)
+    ds = series_dataset(run.series.arrays(), attrs)
+    atomic_to_netcdf(ds, out_dir / "series.nc")
+    run.system.save(out_dir / "final_state.npz")
+    if ckpt.exists():
+        ckpt.unlink()
+    summary = dict(stop_reason=run.stop_reason, t_final=run.system.time,
+                   n_flow=attrs["n_flow"], wall_s=_time.monotonic() - wall0, run=run)
+    return summary
