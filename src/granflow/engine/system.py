@@ -66,6 +66,7 @@ class ParticleSystem:
         self.n_rebuilds = 0
         self.e_elastic = 0.0
         self.max_overlap = 0.0
+        self.e_released = 0.0  # cumulative tangential spring energy released on contact opening
         self._set_particles(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, np.int64),
                             np.zeros(0, bool))
 
@@ -84,12 +85,12 @@ class ParticleSystem:
         self.fixed = np.asarray(fixed, dtype=bool)
         self.wall_hist = np.zeros((n, 3))
         self.wall_dmax = np.zeros(n)
-        self.wall_out = np.zeros((n, 12))
+        self.wall_out = np.zeros((n, K.NOUT))
         self.pi = np.zeros(0, np.int64)
         self.pj = np.zeros(0, np.int64)
         self.hist_t = np.zeros((0, 3))
         self.hist_dmax = np.zeros(0)
-        self.pair_out = np.zeros((0, 12))
+        self.pair_out = np.zeros((0, K.NOUT))
         self.pos_ref = self.pos.copy()
 
     def set_particles(self, pos, diameter, density=6.0 / math.pi, ptype=0, fixed=False):
@@ -133,10 +134,10 @@ class ParticleSystem:
                                              self.skin, self.cell_size)
         self.hist_t = np.zeros((len(self.pi), 3))
         self.hist_dmax = np.zeros(len(self.pi))
-        self.pair_out = np.zeros((len(self.pi), 12))
+        self.pair_out = np.zeros((len(self.pi), K.NOUT))
         self.pos_ref = self.pos.copy()
-        self.e_elastic, self.max_overlap = K.compute_forces(
-            self.pos, self.vel, self.omega, self.radius, self._inv_mass, self.mass, self.ptype,
+        self.e_elastic, self.max_overlap, _ = K.compute_forces(
+            self.pos, self.vel, self.omega, self.vel, self.omega, self.radius, self._inv_mass, self.mass, self.ptype,
             self.fixed, self.Lx, self.Ly, self.gvec, self.pi, self.pj, self.hist_t,
             self.hist_dmax, self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax,
             *self.tables, self.dt, False, self.pair_out, self.wall_out, self.force, self.torque)
@@ -152,8 +153,8 @@ class ParticleSystem:
         if not hasattr(self, "_inv_mass"):
             self._cache_inverse()
         max_allowed = MAX_OVERLAP_FRACTION * 2.0 * float(self.radius.min(initial=0.5))
-        (self.pi, self.pj, self.hist_t, self.hist_dmax, self.pair_out, e_el, max_ov, done, nreb,
-         status) = K.advance(
+        (self.pi, self.pj, self.hist_t, self.hist_dmax, self.pair_out, e_el, max_ov, e_rel, done,
+         nreb, status) = K.advance(
             int(nsteps), self.pos, self.vel, self.omega, self.force, self.torque, self.radius,
             self._inv_mass, self.mass, self._inv_inertia, self.ptype, self.fixed, self.Lx,
             self.Ly, self.gvec, self.pi, self.pj, self.hist_t, self.hist_dmax, self.pos_ref,
@@ -164,9 +165,10 @@ class ParticleSystem:
         self.n_rebuilds += int(nreb)
         self.e_elastic = float(e_el)
         self.max_overlap = float(max_ov)
+        self.e_released += float(e_rel)
         if status == 1:
             raise SimulationError(
-                f"non-finite forces (NaN/inf) at step {self.step_count}, t = {self.time:.6g}: "
+                f"non-finite positions or forces (NaN/inf) at step {self.step_count}, t = {self.time:.6g}: "
                 "check the time step and the contact parameters")
         if status == 2:
             raise SimulationError(
@@ -176,7 +178,9 @@ class ParticleSystem:
 
     # ---------------------------------------------------------------- observables
     def energies(self) -> dict:
-        """Kinetic (translational + rotational), elastic and gravitational energy.
+        """Kinetic (translational + rotational), elastic and gravitational energy, and the
+        cumulative tangential-spring energy released when contacts opened ("released"; it
+        becomes internal energy of the particles, Weinhart et al. 2012 Appendix A).
 
         The gravitational energy is the slope-normal part, sum m |g_z| z over mobile particles:
         the downslope part is not defined in a box periodic in x.
@@ -187,7 +191,8 @@ class ParticleSystem:
         mobile = ~self.fixed
         e_grav = float(np.sum(self.mass[mobile] * (-self.gvec[2]) * self.pos[mobile, 2]))
         return {"kinetic": et + er, "kinetic_translational": et, "kinetic_rotational": er,
-                "elastic": self.e_elastic, "gravitational": e_grav}
+                "elastic": self.e_elastic, "gravitational": e_grav,
+                "released": self.e_released}
 
     def contacts(self) -> dict:
         """Current contacts (for coarse-graining): i, j, force on i, r_i - r_j, contact point.
@@ -207,6 +212,7 @@ class ParticleSystem:
             "use_wall": self.use_wall, "wall_type": self.wall_type, "time": self.time,
             "step_count": self.step_count, "n_rebuilds": self.n_rebuilds,
             "e_elastic": self.e_elastic, "max_overlap": self.max_overlap,
+            "e_released": self.e_released,
             "interactions": self.interactions.to_json_dict(),
         }
         state["meta_json"] = np.array(json.dumps(meta))
@@ -220,7 +226,7 @@ class ParticleSystem:
                    use_wall=meta["use_wall"], wall_type=meta["wall_type"])
         for name in cls._ARRAYS:
             setattr(sys_, name, np.array(state[name]))
-        for key in ("time", "step_count", "n_rebuilds", "e_elastic", "max_overlap"):
+        for key in ("time", "step_count", "n_rebuilds", "e_elastic", "max_overlap", "e_released"):
             setattr(sys_, key, meta[key])
         sys_._cache_inverse()
         return sys_

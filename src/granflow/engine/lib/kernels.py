@@ -29,6 +29,9 @@ from numba import njit, prange
 LAW_LINEAR = 0
 LAW_HERTZ = 1
 LAW_PLASTIC = 2
+#: Columns of the per-pair output rows: f (0:3), torque on i (3:6), torque on j (6:9), elastic
+#: energy (9), overlap (10), normal force (11), tangential spring energy released on opening (12).
+NOUT = 13
 
 
 @njit(cache=True, inline="always")
@@ -43,12 +46,16 @@ def _min_image(dx, L):
 def _contact(
     nx, ny, nz, r, ri, rj, vix, viy, viz, vjx, vjy, vjz,
     wix, wiy, wiz, wjx, wjy, wjz, m_ij, law, kn_hat, gn_hat, kt_hat, gt_hat, mu, k2_hat,
-    hist, dmax_in, dt, update_history, out,
+    hist, dmax_in, dt, update_history, out, dsx, dsy, dsz,
 ):
     """Force on i from j for one touching pair with unit normal n (from j to i), distance r.
 
-    ``hist`` is the pair's tangential spring (length 3, updated in place when
-    ``update_history``).  Returns the new maximum overlap (plastic law) and writes into ``out``:
+    Velocities are the (predicted) velocities at the force time, used by the dashpots.
+    ``hist`` is the pair's tangential spring (length 3): it is rotated into the current tangent
+    plane, advanced by (dsx, dsy, dsz) = dt times the relative tangential contact velocity over
+    the last step (forward Euler of Eq. 9 with the mid-step velocity, which keeps the elastic
+    tangential force conservative), truncated at the Coulomb limit, and stored when
+    ``update_history``.  Returns the new maximum overlap (plastic law) and writes into ``out``:
     f (0:3), torque on i (3:6), torque on j (6:9), elastic energy (9), overlap (10),
     normal force magnitude (11).
     """
@@ -121,6 +128,12 @@ def _contact(
             sx *= fac
             sy *= fac
             sz *= fac
+    if update_history:
+        # forward Euler step of the spring (Eq. 9), tangential part of the increment only
+        dn = dsx * nx + dsy * ny + dsz * nz
+        sx += dsx - dn * nx
+        sy += dsy - dn * ny
+        sz += dsz - dn * nz
     ftx = -kt * sx - gt * vtx
     fty = -kt * sy - gt * vty
     ftz = -kt * sz - gt * vtz
@@ -139,10 +152,9 @@ def _contact(
             sz = -(ftz + gt * vtz) / kt
     e_el += 0.5 * kt * (sx * sx + sy * sy + sz * sz)
     if update_history:
-        # forward Euler step of the spring (Eq. 9)
-        hist[0] = sx + dt * vtx
-        hist[1] = sy + dt * vty
-        hist[2] = sz + dt * vtz
+        hist[0] = sx
+        hist[1] = sy
+        hist[2] = sz
 
     fx = fn * nx + ftx
     fy = fn * ny + fty
@@ -160,17 +172,43 @@ def _contact(
     out[9] = e_el
     out[10] = delta
     out[11] = fn
+    out[12] = 0.0
     return dmax
+
+
+RELEASE_FRACTION = 0.5
+
+
+@njit(cache=True, inline="always")
+def _released_spring_energy(hist, nx, ny, nz, dsx, dsy, dsz, m_ij, law, kt_hat):
+    """Elastic energy left in a tangential spring when its contact opens.
+
+    In the dissipation-free limit this energy becomes internal energy of the particles
+    (Weinhart et al. 2012, Appendix A); it is accounted so that total energy is conserved.
+    The Hertzian spring stiffness vanishes at zero overlap, so nothing is released.
+    """
+    if law == LAW_HERTZ:
+        return 0.0
+    sx = hist[0] + dsx
+    sy = hist[1] + dsy
+    sz = hist[2] + dsz
+    sn = sx * nx + sy * ny + sz * nz
+    sx -= sn * nx
+    sy -= sn * ny
+    sz -= sn * nz
+    return 0.5 * m_ij * kt_hat * (sx * sx + sy * sy + sz * sz)
 
 
 @njit(cache=True, parallel=True)
 def pair_forces(
-    pos, vel, omega, radius, inv_mass, ptype, Lx, Ly, pi, pj, hist_t, hist_dmax,
+    pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, Lx, Ly, pi, pj, hist_t, hist_dmax,
     law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history, pair_out,
 ):
-    """Contact forces of all listed pairs into ``pair_out`` (P, 12); untouched pairs get zeros.
+    """Contact forces of all listed pairs into ``pair_out`` (P, NOUT); untouched pairs get zeros.
 
-    Contact history (tangential spring, maximum overlap) is reset when a pair is not touching.
+    ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
+    mid-step velocities of the last drift (tangential spring increment).  Contact history
+    (tangential spring, maximum overlap) is reset when a pair is not touching.
     """
     npair = pi.shape[0]
     for p in prange(npair):
@@ -181,26 +219,47 @@ def pair_forces(
         dz = pos[i, 2] - pos[j, 2]
         r2 = dx * dx + dy * dy + dz * dz
         rsum = radius[i] + radius[j]
-        if r2 >= rsum * rsum:
-            for k in range(12):
+        touching = r2 < rsum * rsum
+        if not touching and not (update_history and hist_t[p, 0] * hist_t[p, 0]
+                                 + hist_t[p, 1] * hist_t[p, 1] + hist_t[p, 2] * hist_t[p, 2] > 0.0):
+            for k in range(NOUT):
                 pair_out[p, k] = 0.0
-            if update_history:
-                hist_t[p, 0] = 0.0
-                hist_t[p, 1] = 0.0
-                hist_t[p, 2] = 0.0
-                hist_dmax[p] = 0.0
             continue
         r = np.sqrt(r2)
         ti = ptype[i]
         tj = ptype[j]
         m_ij = 1.0 / (inv_mass[i] + inv_mass[j])
+        nx = dx / r
+        ny = dy / r
+        nz = dz / r
+        bi = -(radius[i] - 0.5 * (radius[i] + radius[j] - r))
+        bj = radius[j] - 0.5 * (radius[i] + radius[j] - r)
+        # relative contact-point displacement over the step (mid-step velocities)
+        dsx = dt * (vel_h[i, 0] - vel_h[j, 0] + bi * (omega_h[i, 1] * nz - omega_h[i, 2] * ny)
+                    - bj * (omega_h[j, 1] * nz - omega_h[j, 2] * ny))
+        dsy = dt * (vel_h[i, 1] - vel_h[j, 1] + bi * (omega_h[i, 2] * nx - omega_h[i, 0] * nz)
+                    - bj * (omega_h[j, 2] * nx - omega_h[j, 0] * nz))
+        dsz = dt * (vel_h[i, 2] - vel_h[j, 2] + bi * (omega_h[i, 0] * ny - omega_h[i, 1] * nx)
+                    - bj * (omega_h[j, 0] * ny - omega_h[j, 1] * nx))
+        if not touching:
+            # the contact opened during this step: its spring energy becomes internal energy
+            for k in range(NOUT):
+                pair_out[p, k] = 0.0
+            pair_out[p, 12] = _released_spring_energy(
+                hist_t[p], nx, ny, nz, RELEASE_FRACTION * dsx, RELEASE_FRACTION * dsy,
+                RELEASE_FRACTION * dsz, m_ij, law_tab[ti, tj], kt_tab[ti, tj])
+            hist_t[p, 0] = 0.0
+            hist_t[p, 1] = 0.0
+            hist_t[p, 2] = 0.0
+            hist_dmax[p] = 0.0
+            continue
         dm = _contact(
-            dx / r, dy / r, dz / r, r, radius[i], radius[j],
+            nx, ny, nz, r, radius[i], radius[j],
             vel[i, 0], vel[i, 1], vel[i, 2], vel[j, 0], vel[j, 1], vel[j, 2],
             omega[i, 0], omega[i, 1], omega[i, 2], omega[j, 0], omega[j, 1], omega[j, 2],
             m_ij, law_tab[ti, tj], kn_tab[ti, tj], gn_tab[ti, tj], kt_tab[ti, tj], gt_tab[ti, tj],
             mu_tab[ti, tj], k2_tab[ti, tj], hist_t[p], hist_dmax[p], dt, update_history,
-            pair_out[p],
+            pair_out[p], dsx, dsy, dsz,
         )
         if update_history:
             hist_dmax[p] = dm
@@ -208,15 +267,21 @@ def pair_forces(
 
 @njit(cache=True, parallel=True)
 def wall_forces(
-    pos, vel, omega, radius, inv_mass, ptype, wall_type, wall_hist, wall_dmax,
+    pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, wall_type, wall_hist, wall_dmax,
     law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history, wall_out,
 ):
     """Contacts of mobile particles with the flat frictional wall z = 0 (lambda = 0 base)."""
     n = pos.shape[0]
     for i in prange(n):
         if inv_mass[i] == 0.0 or pos[i, 2] >= radius[i]:
-            for k in range(12):
+            for k in range(NOUT):
                 wall_out[i, k] = 0.0
+            if update_history and inv_mass[i] > 0.0:
+                bi = -radius[i]
+                wall_out[i, 12] = _released_spring_energy(
+                    wall_hist[i], 0.0, 0.0, 1.0, RELEASE_FRACTION * dt * (vel_h[i, 0] + bi * omega_h[i, 1]),
+                    RELEASE_FRACTION * dt * (vel_h[i, 1] - bi * omega_h[i, 0]), 0.0,
+                    1.0 / inv_mass[i], law_tab[ptype[i], wall_type], kt_tab[ptype[i], wall_type])
             if update_history:
                 wall_hist[i, 0] = 0.0
                 wall_hist[i, 1] = 0.0
@@ -226,6 +291,10 @@ def wall_forces(
         ti = ptype[i]
         # the wall acts as a sphere of zero radius at (x, y, 0) touching from below
         r = pos[i, 2]
+        bi = -(radius[i] - 0.5 * (radius[i] - r))
+        dsx = dt * (vel_h[i, 0] + bi * omega_h[i, 1])
+        dsy = dt * (vel_h[i, 1] - bi * omega_h[i, 0])
+        dsz = dt * vel_h[i, 2]
         dm = _contact(
             0.0, 0.0, 1.0, r, radius[i], 0.0,
             vel[i, 0], vel[i, 1], vel[i, 2], 0.0, 0.0, 0.0,
@@ -233,7 +302,7 @@ def wall_forces(
             1.0 / inv_mass[i], law_tab[ti, wall_type], kn_tab[ti, wall_type],
             gn_tab[ti, wall_type], kt_tab[ti, wall_type], gt_tab[ti, wall_type],
             mu_tab[ti, wall_type], k2_tab[ti, wall_type], wall_hist[i], wall_dmax[i], dt,
-            update_history, wall_out[i],
+            update_history, wall_out[i], dsx, dsy, dsz,
         )
         if update_history:
             wall_dmax[i] = dm
@@ -243,8 +312,8 @@ def wall_forces(
 def accumulate_forces(inv_mass, mass, gvec, pi, pj, pair_out, use_wall, wall_out, force, torque):
     """Serial, order-fixed sum of gravity and pair/wall contributions into force and torque.
 
-    Returns (total elastic energy, maximum overlap relative to the smaller diameter... as overlap
-    over the sum of radii, i.e. delta / (r_i + r_j) with the wall counted as a radius-0 sphere).
+    Returns (total elastic energy, maximum overlap, tangential spring energy released by
+    contacts that opened in this step).
     """
     n = force.shape[0]
     for i in range(n):
@@ -261,8 +330,10 @@ def accumulate_forces(inv_mass, mass, gvec, pi, pj, pair_out, use_wall, wall_out
         torque[i, 2] = 0.0
     e_el = 0.0
     max_overlap = 0.0
+    e_rel = 0.0
     for p in range(pi.shape[0]):
         if pair_out[p, 10] == 0.0:
+            e_rel += pair_out[p, 12]
             continue
         i = pi[p]
         j = pj[p]
@@ -277,6 +348,7 @@ def accumulate_forces(inv_mass, mass, gvec, pi, pj, pair_out, use_wall, wall_out
     if use_wall:
         for i in range(n):
             if wall_out[i, 10] == 0.0:
+                e_rel += wall_out[i, 12]
                 continue
             for k in range(3):
                 force[i, k] += wall_out[i, k]
@@ -284,7 +356,7 @@ def accumulate_forces(inv_mass, mass, gvec, pi, pj, pair_out, use_wall, wall_out
             e_el += wall_out[i, 9]
             if wall_out[i, 10] > max_overlap:
                 max_overlap = wall_out[i, 10]
-    return e_el, max_overlap
+    return e_el, max_overlap, e_rel
 
 
 # --------------------------------------------------------------------------------------------
@@ -445,6 +517,8 @@ def max_displacement_sq(pos, pos_ref, Lx, Ly):
         d2 = dx * dx + dy * dy + dz * dz
         if d2 > m:
             m = d2
+        elif not d2 == d2:  # NaN position or velocity
+            return np.inf
     return m
 
 
@@ -497,15 +571,15 @@ def _drift(pos, vel, inv_mass, Lx, Ly, dt):
 
 @njit(cache=True)
 def compute_forces(
-    pos, vel, omega, radius, inv_mass, mass, ptype, fixed, Lx, Ly, gvec, pi, pj, hist_t,
+    pos, vel, omega, vel_h, omega_h, radius, inv_mass, mass, ptype, fixed, Lx, Ly, gvec, pi, pj, hist_t,
     hist_dmax, use_wall, wall_type, wall_hist, wall_dmax, law_tab, kn_tab, gn_tab, kt_tab,
     gt_tab, mu_tab, k2_tab, dt, update_history, pair_out, wall_out, force, torque,
 ):
-    pair_forces(pos, vel, omega, radius, inv_mass, ptype, Lx, Ly, pi, pj, hist_t, hist_dmax,
+    pair_forces(pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, Lx, Ly, pi, pj, hist_t, hist_dmax,
                 law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history,
                 pair_out)
     if use_wall:
-        wall_forces(pos, vel, omega, radius, inv_mass, ptype, wall_type, wall_hist, wall_dmax,
+        wall_forces(pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, wall_type, wall_hist, wall_dmax,
                     law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history,
                     wall_out)
     return accumulate_forces(inv_mass, mass, gvec, pi, pj, pair_out, use_wall, wall_out, force,
@@ -524,11 +598,12 @@ def advance(
 
     Arrays are updated in place, except the pair arrays, which are returned (they change size on
     a rebuild).  Returns (pi, pj, hist_t, hist_dmax, pair_out, e_elastic, max_overlap,
-    steps_done, n_rebuilds, status) with status 0 = ok, 1 = non-finite force, 2 = overlap too
+    e_released, steps_done, n_rebuilds, status) with status 0 = ok, 1 = non-finite force, 2 = overlap too
     large (the step at which it happened is steps_done).
     """
     e_el = 0.0
     max_ov = 0.0
+    e_released = 0.0
     nreb = 0
     half_skin2 = 0.25 * skin * skin
     vel_p = np.empty_like(vel)
@@ -537,27 +612,31 @@ def advance(
         _half_kick(vel, omega, force, torque, inv_mass, inv_inertia, dt)
         _drift(pos, vel, inv_mass, Lx, Ly, dt)
         _predict_velocity(vel, omega, force, torque, inv_mass, inv_inertia, dt, vel_p, omega_p)
-        if max_displacement_sq(pos, pos_ref, Lx, Ly) > half_skin2:
+        disp2 = max_displacement_sq(pos, pos_ref, Lx, Ly)
+        if not np.isfinite(disp2):
+            return pi, pj, hist_t, hist_dmax, pair_out, np.nan, max_ov, e_released, step + 1, nreb, 1
+        if disp2 > half_skin2:
             npi, npj = neighbour_pairs(pos, radius, fixed, Lx, Ly, skin, cell_size)
             nt, nd = transfer_history(pi, pj, hist_t, hist_dmax, npi, npj, pos.shape[0])
             pi = npi
             pj = npj
             hist_t = nt
             hist_dmax = nd
-            pair_out = np.zeros((pi.shape[0], 12))
+            pair_out = np.zeros((pi.shape[0], NOUT))
             pos_ref[:, :] = pos
             nreb += 1
-        e_el, max_ov = compute_forces(
-            pos, vel_p, omega_p, radius, inv_mass, mass, ptype, fixed, Lx, Ly, gvec, pi, pj, hist_t,
+        e_el, max_ov, e_rel = compute_forces(
+            pos, vel_p, omega_p, vel, omega, radius, inv_mass, mass, ptype, fixed, Lx, Ly, gvec, pi, pj, hist_t,
             hist_dmax, use_wall, wall_type, wall_hist, wall_dmax, law_tab, kn_tab, gn_tab,
             kt_tab, gt_tab, mu_tab, k2_tab, dt, True, pair_out, wall_out, force, torque,
         )
         _half_kick(vel, omega, force, torque, inv_mass, inv_inertia, dt)
+        e_released += e_rel
         if not np.isfinite(e_el):
-            return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, step + 1, nreb, 1
+            return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, e_released, step + 1, nreb, 1
         if max_ov > max_overlap_allowed:
-            return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, step + 1, nreb, 2
-    return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, nsteps, nreb, 0
+            return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, e_released, step + 1, nreb, 2
+    return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, e_released, nsteps, nreb, 0
 
 
 @njit(cache=True)
