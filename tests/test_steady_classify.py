@@ -1,0 +1,152 @@
+"""Tests of granflow.steady.classify on synthetic energy-ratio series with known states."""
+
+import numpy as np
+import pytest
+
+from granflow.steady.classify import (
+    ARREST_RATIO,
+    LAYERING_THRESHOLD,
+    STATES,
+    classify_flow,
+    layering_amplitude,
+    oscillation_cycles,
+)
+
+
+def ar1(n, phi, seed):
+    rng = np.random.default_rng(seed)
+    e = rng.normal(0.0, np.sqrt(1.0 - phi**2), n)
+    x = np.empty(n)
+    x[0] = rng.normal()
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    return x
+
+
+T = np.arange(0.0, 2000.0, 1.0)
+N = T.size
+
+
+def noise(seed, amp=0.1, phi=0.8):
+    return 1.0 + amp * ar1(N, phi, seed)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_stationary_noise_is_steady(seed):
+    c = classify_flow(T, 0.1 * noise(seed))
+    assert c.state == "steady"
+    assert c.onset is not None and c.onset <= 0.1 * T[-1]
+    assert 0.0 < c.confidence <= 1.0
+    assert c.flowing
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_linear_trend_is_accelerating(seed):
+    c = classify_flow(T, 0.1 * noise(seed) * (1.0 + T / 1000.0))
+    assert c.state == "accelerating"
+    assert c.confidence > 0.99
+    assert c.onset is None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_exponential_decay_is_arrested(seed):
+    r = 0.1 * noise(seed) * np.exp(-T / 50.0)  # below 1e-5 after ~460 time units
+    c = classify_flow(T, r)
+    assert c.state == "arrested"
+    assert c.confidence == pytest.approx(1.0)
+    assert not c.flowing
+    # not yet arrested while the ratio is above the threshold
+    cut = T < 50.0 * np.log(0.1 / ARREST_RATIO) - 60.0
+    assert classify_flow(T[cut], r[cut]).state != "arrested"
+
+
+def test_initial_zero_kinetic_energy_is_not_arrest():
+    r = 0.1 * noise(1)
+    r[:5] = 0.0  # particles inserted at rest
+    assert classify_flow(T[:200], r[:200]).state != "arrested"
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("kind", ["relax_down", "spin_up"])
+def test_relaxation_then_plateau_is_steady_with_onset(seed, kind):
+    onset = 400.0
+    r = 0.1 * noise(seed, amp=0.05)
+    if kind == "relax_down":
+        r *= np.where(T < onset, 1.0 + 4.0 * (1.0 - T / onset), 1.0)
+    else:
+        r *= np.clip(T / onset, 0.01, 1.0)
+    c = classify_flow(T, r)
+    assert c.state == "steady"
+    assert c.onset == pytest.approx(onset, rel=0.1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_square_wave_stop_and_go_is_oscillating(seed):
+    level = np.where((T // 150) % 2 == 0, 1e-1, 1e-3)  # two decades, period 300
+    c = classify_flow(T, level * noise(seed))
+    assert c.state == "oscillating"
+    assert c.statistics["oscillation_cycles"] >= 6
+    assert c.confidence == pytest.approx(1.0)
+    osc = oscillation_cycles(level * noise(seed))
+    assert osc["min_decades"] == pytest.approx(2.0, abs=0.3)
+
+
+def test_single_dip_is_not_oscillating():
+    r = 0.1 * noise(0, amp=0.05)
+    r[100:200] *= 1e-2  # one stop and restart, e.g. compaction then spin-up
+    assert oscillation_cycles(r)["cycles"] == 1
+    assert classify_flow(T, r).state == "steady"
+
+
+def _profile(amp, z):
+    rho = np.where((z > 0.0) & (z < 20.0), 0.6, 0.0)
+    return rho * (1.0 + amp * np.sin(2 * np.pi * z))
+
+
+def test_layering_amplitude_and_layered_state():
+    z = np.linspace(-2.0, 25.0, 1081)
+    for amp in (0.02, 0.05, 0.3):
+        got = layering_amplitude(z, _profile(amp, z))
+        assert got["amplitude"] == pytest.approx(amp, rel=0.05, abs=2e-3)
+        assert got["period"] == pytest.approx(1.0, abs=0.02)
+        # bulk region [b + 2, s - 4] of Eq. (51), with b = 0, s = 20 (grid spacing 0.025)
+        assert got["bulk_lo"] == pytest.approx(2.0, abs=0.05)
+        assert got["bulk_hi"] == pytest.approx(16.0, abs=0.05)
+    r = 0.1 * noise(2)
+    strong = classify_flow(T, r, density_profile=_profile(0.3, z), z=z)
+    weak = classify_flow(T, r, density_profile=_profile(0.03, z), z=z)
+    assert strong.state == "layered" and strong.layered and strong.onset is not None
+    assert strong.statistics["layering_amplitude"] > LAYERING_THRESHOLD
+    assert weak.state == "steady" and not weak.layered
+    # layering does not override arrest
+    dead = classify_flow(T, 0.1 * np.exp(-T / 50.0), density_profile=_profile(0.3, z), z=z)
+    assert dead.state == "arrested"
+
+
+def test_layering_with_close_packed_period():
+    z = np.linspace(0.0, 20.0, 801)
+    rho = 0.6 * (1.0 + 0.2 * np.cos(2 * np.pi * z / 0.82))
+    got = layering_amplitude(z, rho, bulk=(2.0, 16.0))
+    assert got["period"] == pytest.approx(0.82, abs=0.02)
+    assert got["amplitude"] == pytest.approx(0.2, rel=0.05)
+
+
+def test_u_bar_trend_flags_acceleration():
+    r = 0.1 * noise(3)
+    u = 2.0 * noise(4, amp=0.02) * (1.0 + T / 2000.0)
+    assert classify_flow(T, r).state == "steady"
+    c = classify_flow(T, r, u_bar=u)
+    assert c.state == "accelerating"
+    assert c.statistics["accelerating_test"].startswith("u_bar")
+
+
+def test_explain_and_undecided():
+    c = classify_flow(T[:5], np.ones(5))
+    assert c.state == "undecided" and c.confidence == 0.0
+    assert c.state in STATES
+    c = classify_flow(T, 0.1 * noise(0))
+    line = c.explain()
+    assert "\n" not in line and "steady" in line and "confidence" in line
+    # a decaying (but not yet arrested) flow is neither steady nor accelerating
+    c = classify_flow(T, 0.1 * noise(0, amp=0.05) * (2.0 - T / 2000.0))
+    assert c.state == "undecided"
