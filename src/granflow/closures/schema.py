@@ -1,0 +1,116 @@
+"""Layout of a granflow closure library: which closures it holds and how they are named.
+
+Each closure *kind* (the ``kind`` of a :class:`granflow.fitting.FitResult`) is stored over the
+dimensions in :data:`KINDS` (``contact_law``, ``lambda`` for the basal roughness, ``sigma`` for the
+size ratio) as these variables, every one with CF ``units`` and ``long_name``:
+
+* ``<kind>_<param>`` and ``<kind>_<param>_stderr`` -- fitted parameter and its standard error;
+* ``<kind>_error`` -- the fit's error measure (Weinhart et al. 2012 Eq. 49 of its residuals);
+* ``<kind>_ok`` (int8 flag 0/1), ``<kind>_n_points``, ``<kind>_message``;
+* ``<kind>_<var>_min`` / ``_max`` -- range of the data the fit saw (evaluators refuse to leave it
+  unless asked to extrapolate);
+* declared extras, e.g. ``segregation_Ps_ci95_low/high``.
+
+The campaign table travels along on a ``run`` dimension as ``campaign_<column>``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .. import units as U
+
+SCHEMA_NAME = "granflow.closures"
+SCHEMA_VERSION = "1.0"
+LAMBDA_DIM = "lambda"
+CONTACT_LAW_DIM = "contact_law"
+SIGMA_DIM = "sigma"
+RUN_DIM = "run"
+CAMPAIGN_PREFIX = "campaign_"
+
+#: FitResult.coords key -> library dimension
+COORD_TO_DIM = {"lam": LAMBDA_DIM, "contact_law": CONTACT_LAW_DIM, "sigma": SIGMA_DIM}
+
+
+@dataclass(frozen=True)
+class KindSpec:
+    """How one closure kind is stored: dimensions, parameter units/names, ranges, extras."""
+
+    dims: tuple
+    equation: str
+    params: dict          # name -> (units, long_name)
+    error_units: str
+    ranges: dict          # variable -> (units, long_name)
+    extras: dict = field(default_factory=dict)  # extra key -> (units, long_name)
+
+
+_ANGLE_RANGE = {"theta": (U.ANGLE, "inclination theta")}
+_H_RANGE = {"h": (U.LENGTH, "flow height h")}
+_HSTOP_PARAMS = {
+    "delta1": (U.ANGLE, "hstop angle delta1 (minimum inclination of steady flow)"),
+    "delta2": (U.ANGLE, "hstop angle delta2 (inclination where hstop vanishes)"),
+    "A": (U.LENGTH, "hstop length scale A"),
+}
+_FLOW_RULE_PARAMS = {
+    "beta": (U.DIMENSIONLESS, "flow-rule slope beta"),
+    "gamma": (U.DIMENSIONLESS, "flow-rule offset gamma"),
+}
+
+KINDS = {
+    "hstop": KindSpec(
+        (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (45)", _HSTOP_PARAMS, U.ANGLE,
+        {**_ANGLE_RANGE, "h": (U.LENGTH, "height H")},
+        {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval")}),
+    "hstop_eq38": KindSpec(
+        (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (38)", _HSTOP_PARAMS, U.ANGLE,
+        {**_ANGLE_RANGE, "h": (U.LENGTH, "height H")},
+        {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval")}),
+    "flow_rule": KindSpec(
+        (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (47)", _FLOW_RULE_PARAMS,
+        U.DIMENSIONLESS,
+        {**_ANGLE_RANGE, **_H_RANGE, "F": (U.DIMENSIONLESS, "Froude number F")}),
+    "friction": KindSpec(
+        (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (50)",
+        {**_HSTOP_PARAMS, **_FLOW_RULE_PARAMS}, U.DIMENSIONLESS,
+        {**_ANGLE_RANGE, **_H_RANGE, "F": (U.DIMENSIONLESS, "Froude number F")}),
+    "alpha": KindSpec(
+        (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (54), (55)",
+        {"d_lambda": (U.DIMENSIONLESS, "basal-layer coefficient d_lambda (Eq. 54c)"),
+         "alpha_constant": (U.DIMENSIONLESS, "constant shape factor alpha(lambda) (Eq. 55)")},
+        U.DIMENSIONLESS, {**_ANGLE_RANGE, **_H_RANGE}),
+    "density": KindSpec(
+        (CONTACT_LAW_DIM,), "Weinhart et al. 2012 Eq. (52)",
+        {"c0": (U.DIMENSIONLESS, "bulk volume fraction coefficient c0"),
+         "c1": (U.ANGLE, "bulk volume fraction angle scale c1"),
+         "c2": (U.ANGLE, "bulk volume fraction angle offset c2")},
+        U.DIMENSIONLESS, dict(_ANGLE_RANGE),
+        {"rho_p": (U.DENSITY, "particle material density rho_p")}),
+    "stress_ratio": KindSpec(
+        (CONTACT_LAW_DIM,), "Weinhart et al. 2012 Eq. (53)",
+        {"d0": (U.ANGLE, "stress-ratio angle scale d0"),
+         "d1": (U.ANGLE, "stress-ratio angle offset d1")},
+        U.DIMENSIONLESS, dict(_ANGLE_RANGE)),
+    "segregation": KindSpec(
+        (CONTACT_LAW_DIM, SIGMA_DIM), "Thornton et al. T-eq. (28)",
+        {"Ps": (U.DIMENSIONLESS, "segregation Peclet number Ps")}, U.DIMENSIONLESS,
+        {"z": (U.DIMENSIONLESS, "scaled depth z")},
+        {"phi0": (U.DIMENSIONLESS, "mean small-particle volume fraction phi0"),
+         "ci95": (U.DIMENSIONLESS, "95% confidence interval of Ps")}),
+    "segregation_asymmetric": KindSpec(
+        (CONTACT_LAW_DIM, SIGMA_DIM), "Gajjar & Gray 2014 asymmetric flux (seed 001 Eq. 2.9)",
+        {"Ps": (U.DIMENSIONLESS, "segregation Peclet number Ps (asymmetric flux)"),
+         "kappa": (U.DIMENSIONLESS, "flux asymmetry kappa")}, U.DIMENSIONLESS,
+        {"z": (U.DIMENSIONLESS, "scaled depth z")},
+        {"phi0": (U.DIMENSIONLESS, "mean small-particle volume fraction phi0")}),
+    "Ps_law": KindSpec(
+        (CONTACT_LAW_DIM,), "Thornton et al. T-eq. (29)",
+        {"Pmax": (U.DIMENSIONLESS, "maximum Peclet number Pmax"),
+         "k": (U.DIMENSIONLESS, "Peclet-number growth rate k")}, U.DIMENSIONLESS,
+        {"sigma": (U.DIMENSIONLESS, "size ratio sigma")}),
+    "mu_I": KindSpec(
+        (CONTACT_LAW_DIM,), "seed 001 Eq. (2.13)",
+        {"mu_s": (U.DIMENSIONLESS, "static friction mu_s"),
+         "mu_d": (U.DIMENSIONLESS, "dynamic friction mu_d"),
+         "I0": (U.DIMENSIONLESS, "reference inertial number I0")}, U.DIMENSIONLESS,
+        {"I": (U.DIMENSIONLESS, "inertial number I")}),
+}

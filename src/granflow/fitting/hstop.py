@@ -1,0 +1,292 @@
+"""Stopping height hstop(theta; lambda) fitted to arrested/flowing brackets.
+
+Implements Weinhart et al. (2012) Eq. (45) (Pouliquen's form, Eq. 35):
+
+    hstop(theta) = A d (tan delta2 - tan theta) / (tan theta - tan delta1),  delta1 < theta < delta2,
+
+with hstop = inf for theta <= delta1 and 0 for theta >= delta2, and, for comparison only, the
+earlier exponential form Eq. (38) (Pouliquen 1999):
+
+    hstop'(theta) = A' d ln[(tan delta2' - tan delta1') / (tan theta - tan delta1')].
+
+(The extracted PDF text of Eq. 38 shows the ratio inverted, ln[(tan theta - tan d1)/(tan d2 - tan d1)],
+which is negative on (d1, d2); with A' > 0 the form above is the one with the stated limiting
+behaviour -- diverging at delta1', zero at delta2' -- and is the same curve with A' -> -A'.)
+
+Input data are the bracketing intervals of the adaptive search (physics.md §5, paper §6): for each
+height H, the largest inclination at which the run arrested, ``theta_arrested_max``, and the
+smallest at which it flowed, ``theta_flowing_min``. A height with only one kind of run gives a
+one-sided interval. The fit minimises the horizontal (theta) distance from the curve
+theta_stop(H) to the intervals (zero where the curve crosses an interval), as in the paper. Because
+that objective is flat for every curve crossing all intervals, a small tie-break term
+``tie_break * (theta_stop(H) - interval midpoint)^2`` picks the curve through the middle of the
+intervals among those; ``tie_break=0`` gives the paper's objective alone.
+
+Uncertainties are from a bootstrap over intervals (``stderr_method="bootstrap"``): the intervals
+are resampled with replacement ``n_bootstrap`` times and refitted; stderr is the standard
+deviation of the refitted parameters. The error measure is Eq. (49) of the horizontal distances
+(degrees). The paper fitted Eq. (38) by the vertical distance; here both forms use the horizontal
+distance so that their errors compare like with like.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+from scipy import optimize
+
+from .result import FitResult, error_eq49, failed_fit
+
+EQ45 = "Weinhart et al. 2012 Eq. (45)"
+EQ38 = "Weinhart et al. 2012 Eq. (38)"
+HSTOP_PARAMS = ("delta1", "delta2", "A")
+INTERVAL_COLUMNS = ("H", "theta_arrested_max", "theta_flowing_min")
+FLOWING_STATES = ("steady", "accelerating", "layered", "oscillating")
+
+
+# ---------------------------------------------------------------------------- closed forms
+def hstop_eq45(theta, delta1, delta2, A, d: float = 1.0):
+    """Eq. (45): stopping height at inclination ``theta`` (degrees); inf below delta1, 0 above delta2."""
+    theta = np.asarray(theta, dtype=float)
+    t, t1, t2 = np.tan(np.radians(theta)), math.tan(math.radians(delta1)), math.tan(math.radians(delta2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = A * d * (t2 - t) / (t - t1)
+    h = np.where(theta <= delta1, np.inf, np.where(theta >= delta2, 0.0, h))
+    return h[()] if h.ndim == 0 else h
+
+
+def theta_stop_eq45(h, delta1, delta2, A, d: float = 1.0):
+    """Inverse of Eq. (45): inclination (degrees) at which height ``h`` stops; delta1 as h -> inf."""
+    h = np.asarray(h, dtype=float)
+    t1, t2 = math.tan(math.radians(delta1)), math.tan(math.radians(delta2))
+    Ad = A * d
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(np.isinf(h), t1, (Ad * t2 + h * t1) / (h + Ad))
+    out = np.degrees(np.arctan(t))
+    return out[()] if out.ndim == 0 else out
+
+
+def hstop_eq38(theta, delta1, delta2, A, d: float = 1.0):
+    """Eq. (38), exponential form: A d ln[(tan d2 - tan d1)/(tan theta - tan d1)] on (d1, d2)."""
+    theta = np.asarray(theta, dtype=float)
+    t, t1, t2 = np.tan(np.radians(theta)), math.tan(math.radians(delta1)), math.tan(math.radians(delta2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = A * d * np.log((t2 - t1) / (t - t1))
+    h = np.where(theta <= delta1, np.inf, np.where(theta >= delta2, 0.0, h))
+    return h[()] if h.ndim == 0 else h
+
+
+def theta_stop_eq38(h, delta1, delta2, A, d: float = 1.0):
+    """Inverse of Eq. (38): tan theta = tan d1 + (tan d2 - tan d1) exp(-h/(A d))."""
+    h = np.asarray(h, dtype=float)
+    t1, t2 = math.tan(math.radians(delta1)), math.tan(math.radians(delta2))
+    with np.errstate(over="ignore"):
+        t = t1 + (t2 - t1) * np.exp(-h / (A * d))
+    out = np.degrees(np.arctan(t))
+    return out[()] if out.ndim == 0 else out
+
+
+_FORMS = {"eq45": (EQ45, "hstop", theta_stop_eq45), "eq38": (EQ38, "hstop_eq38", theta_stop_eq38)}
+
+
+# ---------------------------------------------------------------------------- intervals
+def hstop_intervals_from_runs(theta, H=None, state=None) -> pd.DataFrame:
+    """Bracketing intervals [theta_arrested_max, theta_flowing_min] per height from raw runs.
+
+    Accepts arrays ``theta, H, state`` or a single DataFrame (campaign table or any frame with
+    columns theta, H, state) as first argument. 'arrested' runs are arrested; steady, accelerating,
+    layered and oscillating runs count as flowing. A height with only arrested (only flowing)
+    runs gets ``theta_flowing_min = +inf`` (``theta_arrested_max = -inf``): a one-sided interval.
+    If the largest arrested angle exceeds the smallest flowing one (non-monotone outcome), the two
+    are swapped so the interval still brackets the demarcation; ``n_inverted`` counts them.
+    """
+    if isinstance(theta, pd.DataFrame):
+        frame = theta
+        theta, H, state = frame["theta"].to_numpy(float), frame["H"].to_numpy(float), frame["state"].to_numpy()
+    theta = np.asarray(theta, dtype=float)
+    H = np.asarray(H, dtype=float)
+    state = np.asarray(state).astype(str)
+    unknown = set(state) - set(FLOWING_STATES) - {"arrested"}
+    if unknown:
+        raise ValueError(f"unknown flow state(s) {sorted(unknown)}")
+    rows = []
+    for h in np.unique(H[np.isfinite(H)]):
+        sel = H == h
+        arrested = theta[sel & (state == "arrested")]
+        flowing = theta[sel & (state != "arrested")]
+        lo = float(arrested.max()) if arrested.size else -math.inf
+        hi = float(flowing.min()) if flowing.size else math.inf
+        inverted = lo > hi
+        if inverted:
+            lo, hi = hi, lo
+        rows.append({"H": float(h), "theta_arrested_max": lo, "theta_flowing_min": hi,
+                     "inverted": bool(inverted)})
+    return pd.DataFrame(rows, columns=list(INTERVAL_COLUMNS) + ["inverted"])
+
+
+def _as_intervals(intervals, runs):
+    if intervals is None and runs is None:
+        raise ValueError("give either intervals or runs")
+    if intervals is None:
+        intervals = hstop_intervals_from_runs(runs)
+    if not isinstance(intervals, pd.DataFrame):
+        intervals = pd.DataFrame(intervals, columns=list(INTERVAL_COLUMNS))
+    for col in INTERVAL_COLUMNS:
+        if col not in intervals.columns:
+            raise ValueError(f"hstop intervals are missing column {col!r}")
+    H = intervals["H"].to_numpy(float)
+    lo = intervals["theta_arrested_max"].to_numpy(float)
+    hi = intervals["theta_flowing_min"].to_numpy(float)
+    keep = np.isfinite(H) & (H > 0) & ~(np.isnan(lo) & np.isnan(hi))
+    lo = np.where(np.isnan(lo), -np.inf, lo)
+    hi = np.where(np.isnan(hi), np.inf, hi)
+    return H[keep], lo[keep], hi[keep]
+
+
+# ---------------------------------------------------------------------------- fitting
+def horizontal_distance(theta_curve, lo, hi):
+    """Distance (degrees) from curve angles to intervals [lo, hi]; zero inside the interval."""
+    return np.maximum(0.0, np.maximum(lo - theta_curve, theta_curve - hi))
+
+
+def _residuals(p, H, lo, hi, two_sided, tie, theta_stop, d):
+    delta1, width, A = p
+    th = theta_stop(H, delta1, delta1 + width, A, d)
+    r = horizontal_distance(th, lo, hi)
+    if tie > 0 and np.any(two_sided):
+        mid = 0.5 * (lo[two_sided] + hi[two_sided])
+        r = np.concatenate([r, math.sqrt(tie) * (th[two_sided] - mid)])
+    return r
+
+
+def _solve(H, lo, hi, tie, theta_stop, d, starts):
+    two_sided = np.isfinite(lo) & np.isfinite(hi)
+    best = None
+    for p0 in starts:
+        try:
+            sol = optimize.least_squares(
+                _residuals, p0, args=(H, lo, hi, two_sided, tie, theta_stop, d),
+                bounds=([0.0, 1e-3, 1e-6], [89.0, 60.0, 1e5]), x_scale=[1.0, 1.0, max(p0[2], 1e-3)],
+                method="trf", xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=1000)
+        except (ValueError, FloatingPointError):
+            continue
+        if not np.all(np.isfinite(sol.x)):
+            continue
+        if best is None or sol.cost < best.cost:
+            best = sol
+    return best
+
+
+def _starts(H, lo, hi, d):
+    finite_angles = np.concatenate([lo[np.isfinite(lo)], hi[np.isfinite(hi)]])
+    amin, amax = float(finite_angles.min()), float(finite_angles.max())
+    starts = []
+    for off1 in (0.5, 2.0, 5.0):
+        for off2 in (1.0, 5.0, 12.0):
+            d1 = max(amin - off1, 0.5)
+            d2 = amax + off2
+            mid = np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (lo + hi), np.nan)
+            t, t1, t2 = np.tan(np.radians(mid)), math.tan(math.radians(d1)), math.tan(math.radians(d2))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                A_est = H * (t - t1) / (t2 - t) / d
+            A_est = A_est[np.isfinite(A_est) & (A_est > 0)]
+            A0 = float(np.median(A_est)) if A_est.size else 3.0
+            starts.append(np.array([d1, d2 - d1, A0]))
+    return starts
+
+
+def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
+               min_intervals):
+    equation, kind, theta_stop = _FORMS[form]
+    coords = dict(lam=lam, contact_law=contact_law)
+    try:
+        H, lo, hi = _as_intervals(intervals, runs)
+    except ValueError as exc:
+        return failed_fit(kind, equation, HSTOP_PARAMS, str(exc), 0, "bootstrap", **coords)
+    two_sided = np.isfinite(lo) & np.isfinite(hi)
+    n_two = int(two_sided.sum())
+    if n_two < min_intervals:
+        return failed_fit(kind, equation, HSTOP_PARAMS,
+                          f"too few arrested/flowing brackets: {n_two} two-sided intervals, "
+                          f"need at least {min_intervals}", len(H), "bootstrap", **coords)
+    best = _solve(H, lo, hi, tie_break, theta_stop, d, _starts(H, lo, hi, d))
+    if best is None or not best.success:
+        msg = "optimizer did not converge" + (f": {best.message}" if best is not None else "")
+        return failed_fit(kind, equation, HSTOP_PARAMS, msg, len(H), "bootstrap", **coords)
+    delta1, width, A = best.x
+    params = {"delta1": float(delta1), "delta2": float(delta1 + width), "A": float(A)}
+    th = theta_stop(H, params["delta1"], params["delta2"], params["A"], d)
+    dist = horizontal_distance(th, lo, hi)
+
+    rng = np.random.default_rng(seed)
+    boot = []
+    n = len(H)
+    for _ in range(int(n_bootstrap)):
+        idx = rng.integers(0, n, n)
+        if int(two_sided[idx].sum()) < min_intervals:
+            continue
+        sol = _solve(H[idx], lo[idx], hi[idx], tie_break, theta_stop, d, [best.x])
+        if sol is not None and sol.success:
+            boot.append([sol.x[0], sol.x[0] + sol.x[1], sol.x[2]])
+    boot = np.asarray(boot)
+    if len(boot) >= 10:
+        sd = boot.std(axis=0, ddof=1)
+        stderr = dict(zip(HSTOP_PARAMS, map(float, sd)))
+        boot_msg = f"bootstrap: {len(boot)} of {n_bootstrap} refits"
+    else:
+        stderr = {k: math.nan for k in HSTOP_PARAMS}
+        boot_msg = f"bootstrap failed ({len(boot)} usable refits); stderr NaN"
+    finite = np.concatenate([lo[np.isfinite(lo)], hi[np.isfinite(hi)]])
+    return FitResult(
+        kind=kind, equation=equation, params=params, stderr=stderr, error=error_eq49(dist),
+        n_points=int(n), ok=True,
+        message=f"fitted {n} intervals ({n_two} two-sided); curve crosses "
+                f"{int(np.sum(dist == 0))}; {boot_msg}",
+        stderr_method="bootstrap",
+        error_measure="Eq. (49) of the horizontal (theta) distances to the intervals, degrees",
+        valid_range={"theta": (float(finite.min()), float(finite.max())),
+                     "h": (float(H.min()), float(H.max()))},
+        coords={k: v for k, v in coords.items() if v is not None},
+        extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break},
+    )
+
+
+def fit_hstop(intervals=None, *, runs=None, lam=None, contact_law=None, n_bootstrap: int = 200,
+              seed: int = 0, tie_break: float = 1e-3, d: float = 1.0,
+              min_intervals: int = 4) -> FitResult:
+    """Fit Eq. (45) hstop(theta; lambda) to arrested/flowing brackets (see module docstring).
+
+    Parameters
+    ----------
+    intervals : DataFrame with columns H, theta_arrested_max, theta_flowing_min (one-sided
+        intervals use -inf/+inf or NaN), or None when ``runs`` is given.
+    runs : DataFrame with columns theta, H, state (e.g. a campaign table filtered to one lambda);
+        intervals are derived with :func:`hstop_intervals_from_runs`. The heights used are the
+        ``H`` column (filling heights, as in the paper's search).
+    Returns a FitResult with params delta1, delta2 (degrees), A (in d), bootstrap stderr.
+    """
+    return _fit_hstop("eq45", intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
+                      min_intervals)
+
+
+def fit_hstop_eq38(intervals=None, *, runs=None, lam=None, contact_law=None,
+                   n_bootstrap: int = 200, seed: int = 0, tie_break: float = 1e-3,
+                   d: float = 1.0, min_intervals: int = 4) -> FitResult:
+    """Fit the exponential form Eq. (38) to the same brackets, for comparison with Eq. (45)."""
+    return _fit_hstop("eq38", intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
+                      min_intervals)
+
+
+def compare_hstop_forms(intervals=None, *, runs=None, **kwargs) -> pd.DataFrame:
+    """Fit Eq. (45) and Eq. (38) to the same brackets; one row per form with params and error."""
+    rows = []
+    for name, fn in (("eq45", fit_hstop), ("eq38", fit_hstop_eq38)):
+        r = fn(intervals, runs=runs, **kwargs)
+        row = {"form": name, "equation": r.equation, "ok": r.ok, "error": r.error,
+               "n_points": r.n_points}
+        row.update(r.params)
+        row.update({f"{k}_stderr": v for k, v in r.stderr.items()})
+        rows.append(row)
+    return pd.DataFrame(rows)

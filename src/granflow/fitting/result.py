@@ -1,0 +1,130 @@
+"""Common result type and error measure for all closure fits.
+
+Every fit in :mod:`granflow.fitting` returns a :class:`FitResult`. A fit that cannot be made
+(too few points, no arrested/flowing bracket, non-convergence) returns ``ok=False``, NaN
+parameters and a message saying why -- it never fills in numbers.
+
+The error measure is the paper's standard error, Weinhart et al. (2012) Eq. (49):
+``err({x_i}) = (sum_i x_i^2 / (N - 1))^(1/2)`` over the residuals ``x_i`` of a fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Coordinates a result may be tagged with (they become netCDF dimensions in a library).
+COORD_NAMES = ("lam", "contact_law", "sigma")
+
+
+def error_eq49(residuals) -> float:
+    """Standard error of Weinhart et al. (2012) Eq. (49): sqrt(sum x_i^2 / (N - 1)); NaN if N < 2."""
+    x = np.asarray(residuals, dtype=float).ravel()
+    x = x[np.isfinite(x)]
+    if x.size < 2:
+        return math.nan
+    return float(math.sqrt(np.sum(x * x) / (x.size - 1)))
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Outcome of one closure fit.
+
+    Attributes
+    ----------
+    kind : str
+        Which closure this is (e.g. ``"hstop"``, ``"flow_rule"``); names the variables in a library.
+    equation : str
+        The paper equation implemented, e.g. ``"Weinhart et al. 2012 Eq. (45)"``.
+    params : dict
+        Fitted parameter values (NaN when ``ok`` is False).
+    stderr : dict
+        One-standard-error uncertainty of each parameter; how it was obtained is ``stderr_method``
+        (``"covariance"``: square root of the diagonal of the least-squares covariance matrix,
+        scaled by the residual variance; ``"bootstrap"``: standard deviation of refits to
+        resampled data; ``"standard error of the mean"``).
+    error : float
+        The paper's error measure of the fit (Eq. 49 of its residuals, see ``error_measure``).
+    n_points : int
+        Number of data points (or intervals) that entered the fit.
+    ok : bool
+        Whether the fit could be made; if False, params/stderr are NaN and ``message`` says why.
+    message : str
+        Human-readable status.
+    stderr_method, error_measure : str
+        How ``stderr`` and ``error`` were computed.
+    valid_range : dict
+        ``{variable: (min, max)}`` of the data the fit saw; evaluators refuse to go outside it
+        unless asked to extrapolate.
+    coords : dict
+        Where the fit belongs: any of ``lam`` (basal roughness lambda), ``contact_law``, ``sigma``.
+    extra : dict
+        Fit-specific additions (confidence intervals, model comparisons, ...).
+    """
+
+    kind: str
+    equation: str
+    params: dict
+    stderr: dict
+    error: float
+    n_points: int
+    ok: bool
+    message: str
+    stderr_method: str = "covariance"
+    error_measure: str = "Weinhart et al. 2012 Eq. (49) of the residuals"
+    valid_range: dict = field(default_factory=dict)
+    coords: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> float:
+        return self.params[name]
+
+    def tagged(self, **coords) -> "FitResult":
+        """Copy of this result with extra coordinates (``lam``, ``contact_law``, ``sigma``)."""
+        unknown = set(coords) - set(COORD_NAMES)
+        if unknown:
+            raise ValueError(f"unknown coordinate(s) {sorted(unknown)}; allowed: {COORD_NAMES}")
+        merged = dict(self.coords)
+        merged.update({k: v for k, v in coords.items() if v is not None})
+        return dataclasses.replace(self, coords=merged)
+
+
+def failed_fit(kind: str, equation: str, param_names, message: str, n_points: int = 0,
+               stderr_method: str = "covariance", **coords) -> FitResult:
+    """A FitResult for a fit that could not be made: NaN parameters, ``ok=False``."""
+    nan = {name: math.nan for name in param_names}
+    return FitResult(kind=kind, equation=equation, params=dict(nan), stderr=dict(nan),
+                     error=math.nan, n_points=int(n_points), ok=False, message=message,
+                     stderr_method=stderr_method,
+                     coords={k: v for k, v in coords.items() if v is not None})
+
+
+def data_range(values) -> tuple[float, float]:
+    """(min, max) of the finite entries of ``values``."""
+    v = np.asarray(values, dtype=float).ravel()
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return (math.nan, math.nan)
+    return (float(v.min()), float(v.max()))
+
+
+def covariance_stderr(pcov, names) -> dict:
+    """Standard errors from a covariance matrix (NaN when the matrix is not finite)."""
+    pcov = np.atleast_2d(np.asarray(pcov, dtype=float))
+    diag = np.diag(pcov) if pcov.size else np.full(len(names), np.nan)
+    out = {}
+    for name, var in zip(names, diag):
+        out[name] = float(math.sqrt(var)) if np.isfinite(var) and var >= 0 else math.nan
+    return out
+
+
+def finite_mask(*arrays) -> np.ndarray:
+    """Boolean mask of entries finite in every array (arrays broadcast together)."""
+    arrays = np.broadcast_arrays(*[np.asarray(a, dtype=float) for a in arrays])
+    mask = np.ones(arrays[0].shape, dtype=bool)
+    for a in arrays:
+        mask &= np.isfinite(a)
+    return mask

@@ -1,0 +1,283 @@
+"""Segregation closures: steady small-particle profiles and the Peclet number law.
+
+* Steady profile, Thornton et al. T-eq. (28) (Gray & Chugunov 2006): on scaled depth z in [0, 1]
+  (0 = base, 1 = surface) the small-particle volume fraction is
+
+      phi(z) = (1 - e^{-phi0 Ps}) e^{(phi0 - z) Ps}
+               / (1 - e^{-(1 - phi0) Ps} + (1 - e^{-phi0 Ps}) e^{(phi0 - z) Ps}),
+
+  the no-flux steady solution of T-eq. (27), i.e. ``dphi/dz = -Ps phi (1 - phi)`` (segregation
+  flux Sr phi(1-phi) downwards balanced by diffusion Dr dphi/dz, Ps = Sr/Dr), with
+  ``int_0^1 phi dz = phi0``. Small particles collect at the base for Ps > 0.
+* Asymmetric flux (Gajjar & Gray 2014, seed 001 Eq. 2.9): flux A C(1 - C)(1 - kappa C) with
+  A(kappa) chosen so that the maximum flux equals that of C(1 - C) (max 1/4; A = 1.6 for
+  kappa = 0.89). The steady profile solves ``dphi/dz = -Ps A phi (1 - phi)(1 - kappa phi)`` with
+  ``int_0^1 phi dz = phi0``; it has the implicit closed form G(phi) = c - A Ps z with
+  G(phi) = ln phi - ln(1 - phi)/(1 - kappa) + kappa ln(1 - kappa phi)/(1 - kappa), which is
+  inverted by Newton's method, with c set by the mass constraint (Brent's method, Gauss-Legendre
+  quadrature). kappa = 0 reduces to T-eq. (28).
+* Size-ratio law, T-eq. (29): ``Ps(sigma) = Pmax (1 - exp(-k (1/sigma - 1)))``,
+  sigma = d_small/d_large; paper: Pmax = 7.35, k = 5.21.
+
+Per-run fits use scipy.optimize.curve_fit; stderr from the covariance matrix (scaled by the
+residual variance) and a 95 % confidence interval ``Ps +- t_{0.975, n-1} stderr``. Coarse-grained
+profile points are correlated over the coarse-graining width, so that interval is optimistic
+when the profile is sampled more finely than w. Error: Eq. (49) of phi - phi_fit.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pandas as pd
+from scipy import integrate, optimize, special, stats
+
+from .result import FitResult, covariance_stderr, data_range, error_eq49, failed_fit, finite_mask
+
+TEQ28 = "Thornton et al. T-eq. (28)"
+TEQ29 = "Thornton et al. T-eq. (29)"
+ASYM = "Gajjar & Gray 2014 asymmetric flux (seed 001 Eq. 2.9), steady profile"
+
+
+# ---------------------------------------------------------------------------- symmetric profile
+def phi_teq28(z, Ps, phi0):
+    """T-eq. (28) steady small-particle fraction at scaled depth z in [0, 1] (0 = base).
+
+    Evaluated in the overflow-safe logistic form phi = expit(-(Ps (z - phi0) + ln(b/a))) with
+    a = 1 - e^{-phi0 Ps}, b = 1 - e^{-(1 - phi0) Ps}; Ps = 0 gives phi = phi0.
+    """
+    z = np.asarray(z, dtype=float)
+    Ps = float(Ps)
+    phi0 = float(phi0)
+    if not 0.0 < phi0 < 1.0:
+        raise ValueError(f"phi0 must be in (0, 1), got {phi0}")
+    if abs(Ps) < 1e-12:
+        out = np.full_like(z, phi0)
+    else:
+        a = -math.expm1(-phi0 * Ps)
+        b = -math.expm1(-(1.0 - phi0) * Ps)
+        out = special.expit(-(Ps * (z - phi0) + math.log(b / a)))
+    return out[()] if out.ndim == 0 else out
+
+
+def fit_Ps(z, phi, phi0=None, *, sigma=None, contact_law=None, min_points: int = 4,
+           confidence: float = 0.95) -> FitResult:
+    """Fit Ps of T-eq. (28) to one run's profile phi(z) on scaled depth z in [0, 1].
+
+    ``phi0``: mean small-particle fraction (set-up value, 0.5 in the paper); by default the
+    trapezoidal mean of the profile. ``sigma`` tags the result with the run's size ratio.
+    The result's ``extra["ci95"]`` holds the confidence interval of Ps.
+    """
+    coords = dict(contact_law=contact_law, sigma=sigma)
+    z, phi = (np.asarray(x, dtype=float).ravel() for x in (z, phi))
+    m = finite_mask(z, phi)
+    n = int(m.sum())
+    if n < min_points:
+        return failed_fit("segregation", TEQ28, ("Ps",), f"too few profile points: {n}", n,
+                          **coords)
+    z, phi = z[m], phi[m]
+    order = np.argsort(z)
+    z, phi = z[order], phi[order]
+    if phi0 is None:
+        phi0 = float(integrate.trapezoid(phi, z) / (z[-1] - z[0]))
+    if not 0.0 < phi0 < 1.0:
+        return failed_fit("segregation", TEQ28, ("Ps",), f"phi0 = {phi0} not in (0, 1)", n,
+                          **coords)
+    slope = np.polyfit(z, phi, 1)[0]
+    p0 = [float(-slope / max(phi0 * (1 - phi0), 1e-3))]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", optimize.OptimizeWarning)
+            popt, pcov = optimize.curve_fit(lambda zz, Ps: phi_teq28(zz, Ps, phi0), z, phi, p0=p0,
+                                            maxfev=5000)
+    except (RuntimeError, ValueError, optimize.OptimizeWarning) as exc:
+        return failed_fit("segregation", TEQ28, ("Ps",), f"fit failed: {exc}", n, **coords)
+    Ps = float(popt[0])
+    se = covariance_stderr(pcov, ["Ps"])["Ps"]
+    tq = float(stats.t.ppf(0.5 + confidence / 2, n - 1))
+    resid = phi - phi_teq28(z, Ps, phi0)
+    return FitResult(
+        kind="segregation", equation=TEQ28, params={"Ps": Ps}, stderr={"Ps": se},
+        error=error_eq49(resid), n_points=n, ok=True, message=f"fitted {n} profile points",
+        error_measure="Eq. (49) of phi - phi_fit",
+        valid_range={"z": data_range(z)},
+        coords={k: v for k, v in coords.items() if v is not None},
+        extra={"phi0": phi0, "ci95": (Ps - tq * se, Ps + tq * se), "confidence": confidence,
+               "rms_residual": float(np.sqrt(np.mean(resid ** 2)))},
+    )
+
+
+# ---------------------------------------------------------------------------- asymmetric flux
+def asymmetric_flux_amplitude(kappa: float) -> float:
+    """A(kappa) such that max_C A C(1-C)(1-kappa C) = 1/4 (the maximum of C(1-C))."""
+    kappa = float(kappa)
+    if not 0.0 <= kappa < 1.0:
+        raise ValueError(f"kappa must be in [0, 1), got {kappa}")
+    if kappa == 0.0:
+        return 1.0
+    c = (2 * (1 + kappa) - math.sqrt(4 * (1 + kappa) ** 2 - 12 * kappa)) / (6 * kappa)
+    return 0.25 / (c * (1 - c) * (1 - kappa * c))
+
+
+def _G(phi, kappa):
+    """Antiderivative of 1/(phi(1-phi)(1-kappa phi)) (partial fractions)."""
+    return (np.log(phi) - np.log1p(-phi) / (1 - kappa)
+            + kappa * np.log1p(-kappa * phi) / (1 - kappa))
+
+
+def _G_of_logit(y, kappa):
+    """G(phi) with phi = expit(y), computed without cancellation."""
+    return (special.log_expit(y) - special.log_expit(-y) / (1 - kappa)
+            + kappa * np.log1p(-kappa * special.expit(y)) / (1 - kappa))
+
+
+def _G_inverse(target, kappa, iterations: int = 100):
+    """phi with G(phi) = target, by Newton's method on y = logit(phi) (vectorised).
+
+    dG/dy = 1/(1 - kappa phi) lies in [1, 1/(1 - kappa)], so G(y) is monotone with bounded slope
+    and the iteration started from its asymptotes converges quickly.
+    """
+    target = np.asarray(target, dtype=float)
+    y = np.where(target < 0, target, (1 - kappa) * target)
+    for _ in range(iterations):
+        step = (_G_of_logit(y, kappa) - target) * (1 - kappa * special.expit(y))
+        y = y - step
+        if np.all(np.abs(step) < 1e-13 * (1 + np.abs(y))):
+            break
+    return special.expit(y)
+
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(128)
+_GL_X = 0.5 * (_GL_X + 1.0)
+_GL_W = 0.5 * _GL_W
+
+
+def phi_asymmetric(z, Ps, phi0, kappa, A=None):
+    """Steady profile under the asymmetric flux A C(1-C)(1-kappa C) on z in [0, 1], mean phi0.
+
+    ``A`` defaults to :func:`asymmetric_flux_amplitude` (kappa). Solves
+    dphi/dz = -A Ps phi(1-phi)(1-kappa phi) with int_0^1 phi dz = phi0 (see module docstring).
+    """
+    phi0 = float(phi0)
+    if not 0.0 < phi0 < 1.0:
+        raise ValueError(f"phi0 must be in (0, 1), got {phi0}")
+    A = asymmetric_flux_amplitude(kappa) if A is None else float(A)
+    rate = A * float(Ps)
+    z = np.asarray(z, dtype=float)
+    if abs(rate) < 1e-12:
+        out = np.full_like(z, phi0)
+        return out[()] if out.ndim == 0 else out
+
+    def mass(c):
+        return float(np.sum(_GL_W * _G_inverse(c - rate * _GL_X, kappa))) - phi0
+
+    span = 800.0 / (1 - kappa) + abs(rate) + 1.0
+    c = optimize.brentq(mass, -span, span, xtol=1e-14, rtol=1e-14, maxiter=500)
+    out = _G_inverse(c - rate * z, kappa)
+    return out[()] if out.ndim == 0 else out
+
+
+def fit_asymmetric_flux(z, phi, phi0=None, *, sigma=None, contact_law=None,
+                        min_points: int = 5) -> FitResult:
+    """Fit Ps and kappa of the asymmetric-flux steady profile to one run's phi(z)."""
+    coords = dict(contact_law=contact_law, sigma=sigma)
+    names = ("Ps", "kappa")
+    z, phi = (np.asarray(x, dtype=float).ravel() for x in (z, phi))
+    m = finite_mask(z, phi)
+    n = int(m.sum())
+    if n < min_points:
+        return failed_fit("segregation_asymmetric", ASYM, names,
+                          f"too few profile points: {n}", n, **coords)
+    z, phi = z[m], phi[m]
+    order = np.argsort(z)
+    z, phi = z[order], phi[order]
+    if phi0 is None:
+        phi0 = float(integrate.trapezoid(phi, z) / (z[-1] - z[0]))
+    sym = fit_Ps(z, phi, phi0)
+    p0 = [sym.params["Ps"] if sym.ok else 1.0, 0.3]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", optimize.OptimizeWarning)
+            popt, pcov = optimize.curve_fit(
+                lambda zz, Ps, kappa: phi_asymmetric(zz, Ps, phi0, kappa), z, phi, p0=p0,
+                bounds=([-100.0, 0.0], [100.0, 0.99]), maxfev=2000)
+    except (RuntimeError, ValueError, optimize.OptimizeWarning) as exc:
+        return failed_fit("segregation_asymmetric", ASYM, names, f"fit failed: {exc}", n,
+                          **coords)
+    params = dict(zip(names, map(float, popt)))
+    resid = phi - phi_asymmetric(z, params["Ps"], phi0, params["kappa"])
+    return FitResult(
+        kind="segregation_asymmetric", equation=ASYM, params=params,
+        stderr=covariance_stderr(pcov, names), error=error_eq49(resid), n_points=n, ok=True,
+        message=f"fitted {n} profile points", error_measure="Eq. (49) of phi - phi_fit",
+        valid_range={"z": data_range(z)},
+        coords={k: v for k, v in coords.items() if v is not None},
+        extra={"phi0": phi0, "A": asymmetric_flux_amplitude(params["kappa"]),
+               "rms_residual": float(np.sqrt(np.mean(resid ** 2)))},
+    )
+
+
+def compare_segregation_models(z, phi, phi0=None) -> pd.DataFrame:
+    """Fit the symmetric (T-eq. 28) and asymmetric-flux profiles to one run and compare residuals.
+
+    Columns: model, ok, n_params, Ps, Ps_stderr, kappa, rms_residual, error (Eq. 49), aic
+    (Gaussian AIC = n ln(RSS/n) + 2 k; lower is better).
+    """
+    rows = []
+    for name, fit, k in (("symmetric T-eq.28", fit_Ps(z, phi, phi0), 1),
+                         ("asymmetric flux", fit_asymmetric_flux(z, phi, phi0), 2)):
+        rms = fit.extra.get("rms_residual", math.nan)
+        n = fit.n_points
+        aic = n * math.log(rms ** 2) + 2 * k if fit.ok and rms > 0 else math.nan
+        rows.append({"model": name, "ok": fit.ok, "n_params": k, "Ps": fit.params["Ps"],
+                     "Ps_stderr": fit.stderr["Ps"], "kappa": fit.params.get("kappa", 0.0),
+                     "rms_residual": rms, "error": fit.error, "aic": aic})
+    return pd.DataFrame(rows)
+
+
+# ---------------------------------------------------------------------------- Ps(sigma) law
+def Ps_teq29(sigma, Pmax, k):
+    """T-eq. (29): Ps(sigma) = Pmax (1 - exp(-k (1/sigma - 1))), sigma = d_small/d_large."""
+    sigma = np.asarray(sigma, dtype=float)
+    out = Pmax * -np.expm1(-k * (1.0 / sigma - 1.0))
+    return out[()] if out.ndim == 0 else out
+
+
+def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int = 3) -> FitResult:
+    """Fit T-eq. (29) to per-run Peclet numbers Ps at size ratios sigma.
+
+    With ``Ps_stderr`` the points are weighted by it and the covariance is absolute; otherwise
+    scaled by the residual variance.
+    """
+    coords = dict(contact_law=contact_law)
+    names = ("Pmax", "k")
+    sigma, Ps = (np.asarray(x, dtype=float).ravel() for x in (sigma, Ps))
+    m = finite_mask(sigma, Ps) & (sigma > 0) & (sigma < 1)
+    s = None
+    if Ps_stderr is not None:
+        s = np.asarray(Ps_stderr, dtype=float).ravel()
+        m &= np.isfinite(s) & (s > 0)
+    n = int(m.sum())
+    if n < min_points:
+        return failed_fit("Ps_law", TEQ29, names, f"too few size ratios: {n}, need {min_points}",
+                          n, **coords)
+    x, y = sigma[m], Ps[m]
+    s = None if s is None else s[m]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", optimize.OptimizeWarning)
+            popt, pcov = optimize.curve_fit(Ps_teq29, x, y, p0=[float(np.max(y)) * 1.1, 2.0],
+                                            sigma=s, absolute_sigma=s is not None,
+                                            bounds=([0.0, 0.0], [1e4, 1e3]), maxfev=20000)
+    except (RuntimeError, ValueError, optimize.OptimizeWarning) as exc:
+        return failed_fit("Ps_law", TEQ29, names, f"fit failed: {exc}", n, **coords)
+    params = dict(zip(names, map(float, popt)))
+    return FitResult(
+        kind="Ps_law", equation=TEQ29, params=params, stderr=covariance_stderr(pcov, names),
+        error=error_eq49(y - Ps_teq29(x, **params)), n_points=n, ok=True,
+        message=f"fitted {n} runs" + ("; weighted by Ps stderr" if s is not None else ""),
+        error_measure="Eq. (49) of Ps - Ps_fit", valid_range={"sigma": data_range(x)},
+        coords={k: v for k, v in coords.items() if v is not None},
+    )
