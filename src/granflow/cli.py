@@ -24,7 +24,7 @@ def cmd_simulate(args):
 
     params = load_params(args.params)
     summary = simulate(params, args.out, base_file=args.base, threads=args.threads)
-    print(f"{args.out}: {summary['stop_reason']} at t = {summary['t_final']:.4g} "
+    print(f"{args.out}: {summary['flow_state']} ({summary['stop_reason']}) at t = {summary['t_final']:.4g} "
           f"({summary['n_flow']} flow particles, {summary['wall_s']:.1f} s wall)")
 
 

@@ -8,7 +8,15 @@ with the same numbers), and writes
 
 * ``series.nc`` — the energy time series (E_kin, E_ela, E_grav, E_kin/E_ela, mean velocity) with
   CF attributes and provenance;
+* ``profiles.nc`` — coarse-grained depth profiles (density, velocity, stress, species) averaged
+  over the steady window only (or the last ``averaging_time`` of a run that is not steady);
+* ``summary.json`` — flow state, steady-window start, depth averages (h, u_bar, F, alpha, K,
+  rho_bar, rho_c with time-window spreads) and the parameters: one campaign-table row;
 * ``final_state.npz`` — the complete final particle state (restartable).
+
+Early stopping (issue 5): the run ends when the :class:`~granflow.steady.SteadyStateMonitor`
+says it is arrested, clearly accelerating, or steady with ``averaging_time`` of data after the
+steady onset; ``t_end`` is the hard cap.
 
 All outputs are written atomically; the checkpoint is removed only after they exist.
 """
@@ -25,6 +33,7 @@ import numpy as np
 from . import units as U
 from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_base
 from .engine.run import ChuteRun
+from .engine.system import ParticleSystem
 from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
 from .provenance import atomic_to_netcdf, atomic_write_bytes, provenance_attrs
 
@@ -51,6 +60,14 @@ PARAMETERS = {
     "base_layers": "settled base thickness in lambda, [3, 100] (paper 12)",
     "sample_interval": "time between samples (default t_c/2)",
     "checkpoint_every_s": "wall-clock seconds between checkpoints",
+    "early_stop": "stop when arrested / accelerating / steady long enough (default true)",
+    "averaging_time": "averaging time after the steady onset, > 0 (paper 100)",
+    "check_every": "time between steady-state checks, > 0",
+    "min_accelerating_time": "earliest time an accelerating stop is allowed (default t_end/4)",
+    "cg_width": "coarse-graining width w, > 0 (paper 0.25)",
+    "cg_dz": "z spacing of the depth profiles, > 0",
+    "cg_window": "time-window length for profile spreads, > 0",
+    "cg_every": "coarse-grain every n-th sample (default 1: every t_c/2)",
 }
 
 
@@ -65,7 +82,9 @@ def validate_params(params: dict) -> dict:
              contact_law="linear", t_c=REFERENCE["t_c"], e=REFERENCE["e"], mu_c=REFERENCE["mu_c"],
              kt_over_kn=REFERENCE["kt_over_kn"], gt_over_gn=REFERENCE["gt_over_gn"], v_ref=1.0,
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
-             sample_interval=None, checkpoint_every_s=60.0)
+             sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
+             averaging_time=100.0, check_every=10.0, min_accelerating_time=None, cg_width=0.25,
+             cg_dz=0.05, cg_window=10.0, cg_every=1)
     p.update(params)
     for key in ("base_t_c", "base_e", "base_mu_c"):
         p.setdefault(key, None)
@@ -79,6 +98,16 @@ def validate_params(params: dict) -> dict:
     if p["sample_interval"] is not None:
         check_range("sample_interval", p["sample_interval"], 0.0, 1e6, lo_open=True)
     check_range("checkpoint_every_s", p["checkpoint_every_s"], 0.0, 1e7)
+    check_range("averaging_time", p["averaging_time"], 0.0, 1e7, lo_open=True)
+    check_range("check_every", p["check_every"], 0.0, 1e7, lo_open=True)
+    if p["min_accelerating_time"] is not None:
+        check_range("min_accelerating_time", p["min_accelerating_time"], 0.0, 1e7)
+    check_range("cg_width", p["cg_width"], 0.0, 100.0, lo_open=True)
+    check_range("cg_dz", p["cg_dz"], 0.0, 10.0, lo_open=True)
+    check_range("cg_window", p["cg_window"], 0.0, 1e7, lo_open=True)
+    check_range("cg_every", p["cg_every"], 1, 1e6)
+    if not isinstance(p["early_stop"], bool):
+        raise ValueError(f"early_stop = {p['early_stop']!r} must be true or false")
     cfg = chute_config(p)
     cfg.validate()
     BaseConfig(lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"], base_layers=p["base_layers"]).validate()
@@ -163,13 +192,37 @@ def series_dataset(arrays: dict, attrs: dict):
     return ds
 
 
+def _observers(p: dict, cfg: ChuteConfig, series):
+    from .coarse import DepthProfileAccumulator
+    from .observers import MonitorObserver, ProfileObserver
+    from .steady.monitor import SteadyStateMonitor
+
+    d_flow, species = cfg.flow_particles()
+    n_species = int(species.max()) + 1 if len(species) else 1
+    # depth grid: from below the base to well above a dilated flow (saltating grains above the
+    # grid top are simply not counted in the profiles)
+    z_top = 2.0 * p["H"] + 10.0 * float(d_flow.max(initial=1.0))
+    acc = DepthProfileAccumulator(-2.0 * max(p["lam"], 1.0), z_top, p["cg_dz"], width=p["cg_width"],
+                                  Lx=p["Lx"], Ly=p["Ly"], n_species=n_species,
+                                  window_length=p["cg_window"])
+    profile_obs = ProfileObserver(acc, every=int(p["cg_every"]))
+    monitor = SteadyStateMonitor(t_cap=p["t_end"], averaging_time=p["averaging_time"],
+                                 check_every=p["check_every"],
+                                 min_accelerating_time=p["min_accelerating_time"])
+    return profile_obs, MonitorObserver(monitor, series)
+
+
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
-             observers=(), progress=None) -> dict:
+             progress=None) -> dict:
     """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
 
-    Returns a summary dict (stop reason, final time, particle count, wall time).
+    Returns a summary dict (flow state, stop reason, final time, particle count, wall time, and
+    the ChuteRun under ``run``).
     """
+    import json
     import time as _time
+
+    from .coarse.derived import depth_average_summary
 
     p = validate_params(params)
     out_dir = Path(out_dir)
@@ -178,12 +231,16 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     cfg = chute_config(p)
     ckpt = out_dir / "checkpoint.npz"
     wall0 = _time.monotonic()
-    system = None
-    if not ckpt.exists():
+    if ckpt.exists():  # resume: the run restores the system and its observers from here
+        system, _ = ParticleSystem.load(ckpt)
+    else:
         if base_file is not None:
+            base_file = Path(base_file)
+            if not base_file.exists():
+                raise FileNotFoundError(f"base file {os.fspath(base_file)!r} does not exist")
             base = np.load(base_file)
             if base.ndim != 2 or base.shape[1] != 3:
-                raise ValueError(f"base file {base_file!r} does not hold an (M, 3) position array")
+                raise ValueError(f"base file {os.fspath(base_file)!r} does not hold an (M, 3) position array")
         else:
             base = prepare_rough_base(BaseConfig(lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"],
                                                  seed=int(p["seed"]), base_layers=p["base_layers"]))
@@ -191,18 +248,75 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     sample_every = None
     if p["sample_interval"] is not None:
         sample_every = max(1, int(round(p["sample_interval"] / (cfg.flow.t_c / cfg.steps_per_collision))))
-    run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, observers=observers,
-                   checkpoint=ckpt, checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
+    run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
+                   checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
+    profile_obs, monitor_obs = _observers(p, cfg, run.series)
+    run.observers.append(profile_obs)
+    if p["early_stop"]:
+        run.observers.append(monitor_obs)
+    else:
+        monitor_obs.name = "monitor_passive"  # still fed (for the final classification)
+        monitor_obs.should_stop = lambda system: (False, "")
+        run.observers.append(monitor_obs)
     run.try_resume()
     run.run()
+
+    final = monitor_obs.final()
+    t_now = run.system.time
+    if final["flow_state"] in ("steady", "layered") and math.isfinite(final["steady_start"]):
+        t_from = final["steady_start"]
+    else:
+        t_from = max(0.0, t_now - p["averaging_time"])
     attrs = provenance_attrs(config=p, **{k: v for k, v in p.items() if v is not None})
     attrs.update(stop_reason=run.stop_reason, n_flow=int((~run.system.fixed).sum()),
-                 n_base=int(run.system.fixed.sum()), dt=run.system.dt)
+                 n_base=int(run.system.fixed.sum()), dt=run.system.dt, t_final=t_now,
+                 flow_state=final["flow_state"], steady_start=final["steady_start"],
+                 state_confidence=final["confidence"], classification=final["explanation"],
+                 classification_statistics=final["statistics_json"], profile_time_from=t_from)
     ds = series_dataset(run.series.arrays(), attrs)
+    profiles = profile_obs.dataset(t_from=t_from, attrs=attrs)
+    try:
+        averages = depth_average_summary(profiles, theta_deg=p["theta"])
+    except Exception as exc:  # e.g. a run with no material in the grid: keep the failure visible
+        log.warning("depth averages failed: %s", exc)
+        averages = {"error": str(exc)}
+    summary = {
+        "run_dir": os.fspath(out_dir), "flow_state": final["flow_state"],
+        "steady_start": final["steady_start"], "state_confidence": final["confidence"],
+        "classification": final["explanation"], "stop_reason": run.stop_reason,
+        "t_final": t_now, "profile_time_from": t_from, "n_flow": attrs["n_flow"],
+        "params": {k: v for k, v in p.items() if v is not None},
+        "depth_averages": averages,
+        "provenance": {k: attrs[k] for k in ("granflow_version", "git_commit", "config_hash")},
+    }
     atomic_to_netcdf(ds, out_dir / "series.nc")
+    atomic_to_netcdf(profiles, out_dir / "profiles.nc")
     run.system.save(out_dir / "final_state.npz")
+    atomic_write_bytes(out_dir / "summary.json",
+                       json.dumps(_finite_or_none(summary), indent=2, default=_json_default,
+                                  allow_nan=False).encode())
     if ckpt.exists():
         ckpt.unlink()
-    summary = dict(stop_reason=run.stop_reason, t_final=run.system.time,
-                   n_flow=attrs["n_flow"], wall_s=_time.monotonic() - wall0, run=run)
-    return summary
+    log.info("%s: %s", out_dir, final["explanation"])
+    return dict(summary, wall_s=_time.monotonic() - wall0, run=run, profiles=profiles)
+
+
+def _finite_or_none(obj):
+    """Replace NaN/inf floats by None so that summary.json is strict JSON (null)."""
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    if isinstance(obj, (float, np.floating)) and not math.isfinite(float(obj)):
+        return None
+    return obj
+
+
+def _json_default(x):
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.floating,)):
+        return float(x)
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)

@@ -1,0 +1,135 @@
+"""Run observers: on-the-fly coarse-graining and early stopping, attached to a chute run.
+
+Observers are called by :class:`granflow.engine.run.ChuteRun` after every sample interval
+(default t_c/2, Weinhart et al. 2012 §5).  They keep only running sums, never trajectories, and
+checkpoint with the run (``state_dict`` / ``load_state_dict``):
+
+* :class:`ProfileObserver` feeds each snapshot (positions, velocities, contacts with forces and
+  contact points) to a :class:`granflow.coarse.DepthProfileAccumulator` (Eq. 13-32, 43), in
+  time windows, so that the profiles of the steady window alone can be kept at the end.
+* :class:`MonitorObserver` feeds the energies to a
+  :class:`granflow.steady.SteadyStateMonitor` (§6: E_kin / <E_ela>) and asks the run to stop
+  once the flow is arrested, clearly accelerating, or steady with enough averaging time.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from .coarse import DepthProfileAccumulator
+from .steady.monitor import SteadyStateMonitor
+
+
+class ProfileObserver:
+    """Coarse-grain every ``every``-th sample into depth profiles, by time window."""
+
+    name = "profiles"
+
+    def __init__(self, accumulator: DepthProfileAccumulator, every: int = 1, t_start: float = 0.0):
+        self.acc = accumulator
+        self.every = max(1, int(every))
+        self.t_start = float(t_start)
+        self._calls = 0
+
+    def sample(self, system):
+        self._calls += 1
+        if system.time < self.t_start or (self._calls - 1) % self.every:
+            return
+        c = system.contacts()
+        pos, fixed = system.pos, system.fixed
+        ci, cj = c["contact_i"], c["contact_j"]
+        diameter = 2.0 * system.radius
+        species = system.ptype
+        mass = system.mass
+        vel = system.vel
+        if (cj < 0).any():
+            # flat-wall contacts (j = -1): a virtual fixed partner appended at index N, so the
+            # wall force is spread on the base half-line like any base contact
+            n = len(fixed)
+            cj = np.where(cj < 0, n, cj)
+            pos = np.vstack([pos, [[0.0, 0.0, -1.0]]])
+            vel = np.vstack([vel, [[0.0, 0.0, 0.0]]])
+            fixed = np.append(fixed, True)
+            diameter = np.append(diameter, 0.0)
+            species = np.append(species, 0)
+            mass = np.append(mass, 1.0)
+        self.acc.add_snapshot(system.time, pos, vel, mass, diameter, species, fixed, ci, cj,
+                              c["contact_force"], c["contact_rij"], c["contact_point"])
+
+    def state_dict(self) -> dict:
+        state = dict(self.acc.state_dict())
+        state["observer_calls"] = np.int64(self._calls)
+        return state
+
+    def load_state_dict(self, state: dict):
+        state = dict(state)
+        self._calls = int(state.pop("observer_calls"))
+        self.acc = DepthProfileAccumulator.from_state_dict(state)
+
+    def dataset(self, t_from: float | None = None, attrs=None):
+        """Profiles averaged over the windows starting at or after ``t_from`` (all if None)."""
+        acc = self.acc
+        if t_from is not None and acc.window_length is not None and acc.t_first is not None:
+            keep = {k: w for k, w in acc._windows.items()
+                    if acc.t_first + k * acc.window_length >= t_from - 1e-9}
+            if keep:
+                acc = DepthProfileAccumulator.from_state_dict(acc.state_dict())
+                acc._windows = keep
+        return acc.to_dataset(attrs)
+
+
+class MonitorObserver:
+    """Early stopping by :class:`SteadyStateMonitor` on the run's energy series."""
+
+    name = "monitor"
+
+    def __init__(self, monitor: SteadyStateMonitor, series):
+        self.monitor = monitor
+        self.series = series  # the run's EnergySeries (already sampled before this observer)
+
+    def sample(self, system):
+        d = self.series.data
+        self.monitor.update(d["time"][-1], d["e_kin"][-1], d["e_ela"][-1], d["u_mean"][-1])
+
+    def should_stop(self, system):
+        dec = self.monitor.decision()
+        if dec.stop:
+            return True, f"{dec.reason}: {dec.message}"
+        return False, ""
+
+    def state_dict(self) -> dict:
+        out = {}
+        for key, value in self.monitor.state_dict().items():
+            out[key] = np.asarray(value) if not isinstance(value, str) else np.array(value)
+        return out
+
+    def load_state_dict(self, state: dict):
+        self.monitor = SteadyStateMonitor.from_state_dict(state)
+
+    def final(self) -> dict:
+        """Final classification of the run (state, steady window start, confidence, reason)."""
+        self.monitor.flush()
+        dec = self.monitor.decision()
+        cls = self.monitor.classify() if not dec.stop else self.monitor.classification
+        if cls is None:
+            cls = self.monitor.classify()
+        state = dec.state if dec.stop else cls.state
+        start = dec.steady_start if dec.stop else cls.onset
+        return {
+            "flow_state": state,
+            "steady_start": float("nan") if start is None else float(start),
+            "confidence": float(dec.confidence if dec.stop else cls.confidence),
+            "stop_reason": dec.reason if dec.stop else "t_end",
+            "explanation": cls.explain() if cls is not None else dec.message,
+            "statistics_json": json.dumps(getattr(cls, "statistics", {}), default=_json_float),
+        }
+
+
+def _json_float(x):
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return str(x)
