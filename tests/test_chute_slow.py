@@ -34,6 +34,19 @@ def test_theta16_arrests(base_lam1, tmp_path):
     assert res["t_final"] < 300.0  # early stopping ended it
 
 
+def test_theta40_accelerates(base_lam1, tmp_path):
+    """Issue 5: at 40 degrees (above delta_acc ~ 30 for lambda = 1) the flow accelerates; the
+    monitor stops it as soon as the trend is significant (here after t_end/4 = 100)."""
+    res = simulate(dict(theta=40.0, H=10.0, lam=1.0, t_end=400.0, base_layers=6.0, **BOX),
+                   tmp_path, base_file=base_lam1)
+    s = res["run"].series.arrays()
+    assert res["flow_state"] == "accelerating"
+    assert res["t_final"] < 400.0
+    # kinetic energy keeps growing: last quarter well above the second quarter
+    n = len(s["time"])
+    assert s["e_kin"][-n // 4:].mean() > 2.0 * s["e_kin"][n // 4:n // 2].mean()
+
+
 @pytest.fixture(scope="module")
 def steady24(base_lam1, tmp_path_factory):
     out = tmp_path_factory.mktemp("r24")
@@ -70,3 +83,32 @@ def test_steady_chute_is_lithostatic_with_friction_tan_theta(steady24):
     assert rel.max() < 0.01
     angle = np.degrees(np.arctan(-sxz[inside] / szz[inside]))
     assert np.abs(angle - 24.0).max() < 0.5
+
+
+def test_bidisperse_chute_segregates_small_particles_downwards(tmp_path):
+    """Issue 3: 1/sigma = 2, phi0 = 0.5 on a rough base of small particles: particle numbers are
+    conserved and the small particles end up lower on average than the large ones."""
+    base = tmp_path / "base.npy"
+    prepare_base_file(1.0, 20.0, 5.0, 2, base, base_layers=6.0, settle_time=20.0)
+    res = simulate(dict(theta=25.0, H=10.0, lam=1.0, Lx=20.0, Ly=5.0, sigma=0.5, phi0=0.5,
+                        t_end=150.0, early_stop=False, base_layers=6.0), tmp_path / "run",
+                   base_file=base)
+    sys_ = res["run"].system
+    flow = ~sys_.fixed
+    d = 2 * sys_.radius[flow]
+    n_small, n_large = int((d == 1.0).sum()), int((d == 2.0).sum())
+    # counts: phi0 of the flow volume H Lx Ly pi/6 in small particles, the rest in large ones
+    assert n_small == round(0.5 * 10 * 100 / 1.0) and n_large == round(0.5 * 10 * 100 / 8.0)
+    assert n_small + n_large == res["n_flow"]
+    z = sys_.pos[flow, 2]
+    assert np.all(np.isfinite(z)) and np.all(z > -1.0)  # nobody fell through the base
+    z_small, z_large = z[d == 1.0].mean(), z[d == 2.0].mean()
+    assert z_small < z_large - 0.5
+    phi = res["profiles"].small_particle_fraction
+    # the species-resolved profile shows it too: more small particles in the lower half
+    h = res["depth_averages"]
+    mid = 0.5 * (h["base"] + h["surface"])
+    zc = res["profiles"].z.values
+    low = (zc > h["base"]) & (zc < mid)
+    high = (zc > mid) & (zc < h["surface"])
+    assert float(phi.values[low].mean()) > float(phi.values[high].mean())
