@@ -73,7 +73,7 @@ class ParticleSystem:
     # ---------------------------------------------------------------- particles
     def _set_particles(self, pos, diameter, density, ptype, fixed):
         n = len(diameter)
-        self.pos = np.ascontiguousarray(pos, dtype=np.float64).reshape(n, 3)
+        self.pos = np.array(pos, dtype=np.float64, copy=True).reshape(n, 3)  # never alias the caller's
         self.vel = np.zeros((n, 3))
         self.omega = np.zeros((n, 3))
         self.force = np.zeros((n, 3))

@@ -8,8 +8,9 @@ advances and says when the run can stop:
 * **arrested** -- the ratio is below 1e-5 for :data:`~granflow.steady.classify.ARREST_HOLD_TIME`
   (checked on every sample bin, O(1));
 * **accelerating** -- the classifier says accelerating at t >= ``min_accelerating_time`` with
-  confidence >= ``accel_confidence``, or the ratio grew by ``accel_growth_factor`` between the
-  window at half the elapsed time and the last window;
+  confidence >= ``accel_confidence`` and the ratio grew by at least :data:`ACCEL_MIN_GROWTH`
+  between the window at half the elapsed time and the last window, or it grew by
+  ``accel_growth_factor`` whatever the test says;
 * **steady** -- the classifier says steady (or layered) with at least ``averaging_time`` of data
   after the steady onset, at ``steady_confirmations`` consecutive checks (default 2: every check is
   a new chance for a noisy ramp to look flat once); :attr:`SteadyStateMonitor.steady_start` is where the coarse-grained
@@ -43,6 +44,7 @@ from .classify import (
 __all__ = [
     "ACCEL_CONFIDENCE",
     "ACCEL_GROWTH_FACTOR",
+    "ACCEL_MIN_GROWTH",
     "MIN_ACCELERATING_FRACTION",
     "MonitorDecision",
     "SteadyStateMonitor",
@@ -55,6 +57,11 @@ ACCEL_CONFIDENCE = 0.999
 #: ... or when the ratio (E_kin ~ u^2) grew tenfold between half the elapsed time and now
 #: (velocity x3.2): no spin-up of a steady flow looks like that after ``min_accelerating_time``.
 ACCEL_GROWTH_FACTOR = 10.0
+#: A significant trend alone is not enough to stop as accelerating: the ratio must also have grown
+#: by this factor between half the elapsed time and now (velocity +22 %).  Without it, the slow
+#: final spin-up of a thick steady flow in a small (noisy) box was stopped as "accelerating" at
+#: t = 110 with growth x1.09 (theta = 24, H = 10, 10 x 5 box).
+ACCEL_MIN_GROWTH = 1.5
 #: Default ``min_accelerating_time`` = this fraction of ``t_cap`` (500 for the paper's 2000, the
 #: paper's arrest horizon): a steady flow's spin-up from rest also "accelerates", and before the
 #: plateau is reached the two cannot be told apart.  Raise it for thick flows that spin up slowly.
@@ -303,7 +310,8 @@ class SteadyStateMonitor:
             return
         if c.state == "accelerating" and tb - self._t_origin >= self.min_accelerating_time:
             growth = self._growth(s["ratio"], s["time"])
-            if c.confidence >= self.accel_confidence or growth >= self.accel_growth_factor:
+            significant = c.confidence >= self.accel_confidence and growth >= ACCEL_MIN_GROWTH
+            if significant or growth >= self.accel_growth_factor:
                 self._set_decision(True, "accelerating", c.state, tb, None, c.confidence,
                                    f"t={tb:.6g}: stop, accelerating (growth x{growth:.3g}); {msg}")
                 return
