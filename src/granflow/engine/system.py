@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import math
 import os
 from pathlib import Path
@@ -25,7 +26,10 @@ import numpy as np
 
 from ..provenance import atomic_write_bytes
 from .lib import kernels as K
+from .lib.hgrid import choose_neighbour_method, hgrid_pairs
 from .species import InteractionTable, check_range
+
+log = logging.getLogger(__name__)
 
 #: Maximum overlap allowed, as a fraction of the smaller diameter of the pair (issue guard).
 MAX_OVERLAP_FRACTION = 0.05
@@ -122,16 +126,12 @@ class ParticleSystem:
     def inv_inertia(self):
         return np.where(self.fixed, 0.0, 1.0 / np.where(self.inertia > 0, self.inertia, 1.0))
 
-    @property
-    def cell_size(self) -> float:
-        return 2.0 * float(self.radius.max(initial=0.5)) + self.skin
-
     # ---------------------------------------------------------------- stepping
     def initialize(self):
         """Build the neighbour list and the forces of the current state (no history update)."""
         self._cache_inverse()
-        self.pi, self.pj = K.neighbour_pairs(self.pos, self.radius, self.fixed, self.Lx, self.Ly,
-                                             self.skin, self.cell_size)
+        self.pi, self.pj = hgrid_pairs(self.pos, self.radius, self.fixed, self.Lx, self.Ly,
+                                       self.skin, self._level_of, self._level_cell)
         self.hist_t = np.zeros((len(self.pi), 3))
         self.hist_dmax = np.zeros(len(self.pi))
         self.pair_out = np.zeros((len(self.pi), K.NOUT))
@@ -145,6 +145,15 @@ class ParticleSystem:
     def _cache_inverse(self):
         self._inv_mass = self.inv_mass
         self._inv_inertia = self.inv_inertia
+        # neighbour search: hierarchical grid when the size ratio makes it pay (issue 3); the
+        # levels follow from the radii alone, so checkpoints need not store them
+        method, info = choose_neighbour_method(self.radius, self.skin)
+        self.neighbour_method = method
+        self._level_of = np.ascontiguousarray(info["level_of"], dtype=np.int64)
+        self._level_cell = np.asarray(info["cell_sizes"], dtype=np.float64)
+        log.info("neighbour search: %s, d_max/d_min = %.3g, cell sizes %s, particles per level %s",
+                 method, info["size_ratio"], [round(c, 4) for c in info["cell_sizes"]],
+                 info["level_counts"])
 
     def step(self, nsteps: int):
         """Advance ``nsteps`` time steps; raise :class:`SimulationError` on NaN or overlap."""
@@ -158,7 +167,7 @@ class ParticleSystem:
             int(nsteps), self.pos, self.vel, self.omega, self.force, self.torque, self.radius,
             self._inv_mass, self.mass, self._inv_inertia, self.ptype, self.fixed, self.Lx,
             self.Ly, self.gvec, self.pi, self.pj, self.hist_t, self.hist_dmax, self.pos_ref,
-            self.skin, self.cell_size, self.use_wall, self.wall_type, self.wall_hist,
+            self.skin, self._level_of, self._level_cell, self.use_wall, self.wall_type, self.wall_hist,
             self.wall_dmax, *self.tables, self.dt, self.pair_out, self.wall_out, max_allowed)
         self.step_count += int(done)
         self.time = self.step_count * self.dt

@@ -1,9 +1,9 @@
 """Hierarchical-grid neighbour search for polydisperse packings (Ogarko & Luding 2012).
 
-Implements the multilevel contact detection reviewed in the seed papers (Weinhart, Thornton,
-Luding & Bokhove, "From discrete particles to continuum fields near a boundary" / closure
-review, §5 "Collision detection", 5.1.1 mapping phase and 5.1.2 contact detection phase; the
-two-level grid of §5.2 for bidisperse systems):
+Implements the multilevel contact detection of Ogarko & Luding (2012) as reviewed in Thornton,
+Weinhart, Ogarko & Luding, "Multi-scale methods for multi-component granular materials", §5
+"Collision detection" (§5 in both seed versions, 000 and 002): 5.1.1 mapping phase, 5.1.2
+contact detection phase, and the two-level grid of §5.2 for bidisperse systems:
 
 * **Levels** (§5.1.1, Eq. 22-24).  Particles are grouped by diameter into ``L`` levels ordered by
   increasing cell size; the cell size of level ``h`` is ``s_h = 2 r_max(h) + skin`` (the largest
@@ -17,8 +17,10 @@ two-level grid of §5.2 for bidisperse systems):
   surrounding cells (each pair found once).
 * **Cross-level search** (§5.1.2 steps 1-2, Eq. 25-26): a particle ``p`` of level ``H`` visits,
   on every finer level ``h < H``, the cells overlapping the box ``r_p +- alpha`` with
-  ``alpha = r_p + r_max(h) + skin`` (the seed's ``a_p + s_h/2`` with the skin), so cross-level
-  pairs are tested only from the larger to the smaller particle, each exactly once.
+  ``alpha = r_p + r_max(h) + skin`` (the seed's ``a_p + s_h/2`` with the skin), skipping the
+  cells of the box whose extent is farther than ``alpha`` from ``r_p`` (the box corners), so
+  cross-level pairs are tested only from the larger to the smaller particle, each exactly once.
+  The seed's AABB pre-test is replaced by exact early exits of the distance test (z first).
 
 Geometry as in :func:`granflow.engine.lib.kernels.neighbour_pairs`: periodic in x and y on
 ``[0, Lx) x [0, Ly)`` with the minimum-image convention, open in z (cells indexed from the lowest
@@ -32,9 +34,15 @@ at cell faces can never lose a pair: the result is exact, the distance test is t
 
 Output: ``(pi, pj)`` int64, all pairs ``i < j``, not both fixed, with minimum-image distance
 ``< r_i + r_j + skin``, sorted by ``(i, j)`` — exactly the arrays of ``neighbour_pairs``.  The
-pairs are found per particle in parallel (``prange``; count pass, prefix sum, fill pass), then
-transposed to rows of the lower index with a serial counting sort and each row sorted, so the
-result does not depend on the number of threads.
+pairs are found per particle in parallel (``prange`` over the particles in cell order, on
+cell-ordered copies of the coordinates; count pass, prefix sum, fill pass), then transposed to
+rows of the lower index with a serial counting sort and each row sorted (``prange``), so the
+result does not depend on the number of threads.  With a single level this is the classical
+linked-cell method with a half shell; it is itself ~1.3-1.8x faster than ``neighbour_pairs``
+(full shell with a ``j > i`` filter), see ``benchmarks/bench_hgrid.py``.
+
+Cold compilation of this module takes ~30-45 s on the 2-core development machine under load
+(cached afterwards, ``cache=True``).
 
 The automatic choice between the single-level cell list and this grid is
 :func:`choose_neighbour_method`; the switch point was measured with
@@ -53,8 +61,6 @@ from numba import njit, prange
 SWITCH_RATIO = 1.5
 #: Relative widening of cell sizes and search boxes against rounding at cell faces.
 _REL_MARGIN = 1e-9
-#: Rows longer than this are sorted with np.sort instead of insertion sort.
-_INSERTION_MAX = 48
 
 
 @njit(cache=True, inline="always")
@@ -109,22 +115,31 @@ def choose_neighbour_method(radius, skin=0.2, switch_ratio=SWITCH_RATIO):
     :func:`make_levels` with ``ratio = switch_ratio``, so every level boundary is itself a size
     jump that pays.
 
-    Switch point (measured, ``benchmarks/bench_hgrid.py``; bidisperse, equal volumes of both
-    sizes, phi ~ 0.5 random sequential placement, d_large = 1, skin = 0.1 d_large, periodic
-    cube, N = 50 000-600 000 (N grows with 1/sigma), warm numba, one thread; the two-level grid
-    against the single-level cell list)::
+    Switch point (measured with ``benchmarks/bench_hgrid.py``: bidisperse, equal volumes of
+    both sizes, packing fraction 0.6 (random placement + overlap relaxation), d_small = 1,
+    skin = 0.2 (engine default), periodic x/y, N = 50 000; warm numba; one thread, process CPU
+    time, minimum over interleaved rounds; a shared 2-core machine at load 4-6, two runs A/B).
+    S1 = time of this code with one level / with two levels (the seed's comparison); S = time
+    of the existing ``kernels.neighbour_pairs`` / two levels::
 
-        1/sigma    speed-up (t_cells / t_hgrid)
-        1.25       0.95    (two levels of nearly equal cells: pure overhead)
-        1.5        1.2
-        2          1.9
-        3          4.6
-        5          13
+        1/sigma   t_cells     t_1level    t_2level     S1          S
+                  A / B ms    A / B ms    A / B ms     A / B       A / B
+        1.0       186 / 112   108 / 87    100 / 85     1.07/1.03   1.86/1.32  (1 level: noise)
+        1.25      206 / 143   133 / 118   137 / 122    0.96/0.97   1.50/1.17
+        1.5       221 / 163   145 / 140   126 / 122    1.15/1.15   1.76/1.34
+        2         237 / 203   168 / 152   103 / 100    1.64/1.52   2.31/2.03
+        3         584 / 346   356 / 248   107 / 88     3.34/2.82   5.48/3.93
+        5        1595 / 981   938 / 631    94 / 87     9.99/7.24   17.0/11.3
 
-    (two threads: the same within ~10 %).  The grid breaks even between 1.25 and 1.5; the switch
-    is set to ``SWITCH_RATIO = 1.5``.  The seed's reference (Ogarko & Luding, Fig. 6,
-    N = 128 000-768 000, phi near jamming): up to 40 % slower for 1/sigma < 1.43 and 22x faster
-    at 1/sigma = 5.
+    Two threads (wall time; with other jobs on the 2 cores these are the least reliable):
+    S1 = 0.87/0.78, 1.11/0.81, 1.37/1.05, 2.91/2.48, 8.85/6.88 and S = 1.36/1.38, 1.66/1.22,
+    1.99/1.81, 3.74/3.91, 24.1/15.3 at 1/sigma = 1.25, 1.5, 2, 3, 5.  The second level pays
+    from between 1.25 and 1.5 on (one thread); the seed (Ogarko & Luding, Fig. 6) finds
+    break-even at 1/sigma ~ 1.43, up to 40 % slower below, 22x at 1/sigma = 5 for
+    N = 768 000 without a skin (the skin shrinks the gain: the small cells are 1.2 d_small, not
+    d_small).  Hence ``SWITCH_RATIO = 1.5``.  Below the switch the one-level grid of this
+    module (``make_levels(..., ratio=inf)`` + :func:`hgrid_pairs`) is still 1.2-1.8x faster
+    than ``neighbour_pairs``.
 
     ``info``: ``size_ratio`` (d_max / d_min), ``cell_sizes`` (per level; one entry for
     "cells", the single-level cell size 2 r_max + skin), ``level_counts``, ``level_of``
@@ -269,151 +284,175 @@ def _build_hgrid(pos, radius, Lx, Ly, skin, level_of, level_cell):
 # --------------------------------------------------------------------------------------------
 # contact detection phase
 # --------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _accept(xi, yi, zi, ri, xj, yj, zj, rj, Lx, Ly, skin):
+    """The pair test of ``kernels._neighbour_rows`` (same operands, same operation order).
+
+    It is symmetric in (i, j) bit for bit (round-half-even rint is odd, a - b = -(b - a), +
+    commutes).  The early exits are exact: rounding is monotone, so fl(fl(dx^2 + dy^2) + dz^2)
+    is at least dz^2 and at least fl(dx^2 + dz^2).
+    """
+    dz = zi - zj
+    rc = ri + rj + skin
+    rc2 = rc * rc
+    dz2 = dz * dz
+    if dz2 >= rc2:
+        return False
+    dx = _min_image(xi - xj, Lx)
+    dx2 = dx * dx
+    if dx2 + dz2 >= rc2:
+        return False
+    dy = _min_image(yi - yj, Ly)
+    return dx2 + dy * dy + dz2 < rc2
+
+
+@njit(cache=True)
+def _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base,
+                   rmax, count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
+                   found_start, out_q, fill):
+    """Count (fill=False) or write (fill=True) the partners q found by the particle in slot sp.
+
+    Same-level partners through the half shell, finer-level partners through the cross-level
+    box (Eq. 25-26); every pair is found by exactly one of its particles, and whichever finds
+    it, the decision is the same (:func:`_accept`).  Returns the number of partners.
+    """
+    p = cell_particles[sp]
+    lv = ls[sp]
+    c = cell_of[p] - base[lv]
+    nx = ncx[lv]
+    ny = ncy[lv]
+    nz = ncz[lv]
+    cx = c % nx
+    cy = (c // nx) % ny
+    cz = c // (nx * ny)
+    px = xs[sp]
+    py = ys[sp]
+    pz = zs[sp]
+    pr = rs[sp]
+    fp = fs[sp]
+    cnt = 0
+    out0 = found_start[p] if fill else 0
+    # ---- step 1: linked cells on the level of insertion (half shell)
+    for k in range(noff[lv]):
+        zz = cz + offs[lv, k, 2]
+        if zz < 0 or zz >= nz:
+            continue
+        yy = cy + offs[lv, k, 1]
+        if yy < 0:
+            yy += ny
+        elif yy >= ny:
+            yy -= ny
+        xx = cx + offs[lv, k, 0]
+        if xx < 0:
+            xx += nx
+        elif xx >= nx:
+            xx -= nx
+        cc = base[lv] + (zz * ny + yy) * nx + xx
+        s0 = start[cc]
+        s1 = start[cc + 1]
+        if filts[lv, k]:
+            # own cell (or a self-inverse offset): keep each pair once, from the lower index
+            for s in range(s0, s1):
+                q = cell_particles[s]
+                if q <= p or (fp and fs[s]):
+                    continue
+                if _accept(px, py, pz, pr, xs[s], ys[s], zs[s], rs[s], Lx, Ly, skin):
+                    if fill:
+                        out_q[out0 + cnt] = q
+                    cnt += 1
+        else:
+            for s in range(s0, s1):
+                if fp and fs[s]:
+                    continue
+                if _accept(px, py, pz, pr, xs[s], ys[s], zs[s], rs[s], Lx, Ly, skin):
+                    if fill:
+                        out_q[out0 + cnt] = cell_particles[s]
+                    cnt += 1
+    # ---- step 2: cross-level search on the finer levels (Eq. 25-26)
+    xp = px - Lx * np.floor(px / Lx)
+    yp = py - Ly * np.floor(py / Ly)
+    zp = pz - zmin
+    for h in range(lv):
+        if count[h] == 0:
+            continue
+        alpha = pr + rmax[h] + skin + margin
+        hx = ncx[h]
+        hy = ncy[h]
+        hz = ncz[h]
+        x0 = int(np.floor((xp - alpha) / csx[h]))
+        x1 = int(np.floor((xp + alpha) / csx[h]))
+        wrapx = x1 - x0 + 1 < hx
+        if not wrapx:
+            x0 = 0
+            x1 = hx - 1
+        y0 = int(np.floor((yp - alpha) / csy[h]))
+        y1 = int(np.floor((yp + alpha) / csy[h]))
+        wrapy = y1 - y0 + 1 < hy
+        if not wrapy:
+            y0 = 0
+            y1 = hy - 1
+        z0 = min(max(int(np.floor((zp - alpha) / csz[h])), 0), hz - 1)
+        z1 = min(max(int(np.floor((zp + alpha) / csz[h])), 0), hz - 1)
+        # visit only the cells of the box whose extent is within alpha of p (Euclidean);
+        # the top z cell is clamped (open above)
+        a2 = alpha * alpha
+        for zz in range(z0, z1 + 1):
+            gz = zz * csz[h] - zp
+            if gz < 0.0:
+                gz = 0.0 if zz == hz - 1 else max(0.0, zp - (zz + 1) * csz[h])
+            gz2 = gz * gz
+            if gz2 > a2:
+                continue
+            for yv in range(y0, y1 + 1):
+                gy2 = gz2
+                if wrapy:
+                    gy = max(0.0, yv * csy[h] - yp, yp - (yv + 1) * csy[h])
+                    gy2 += gy * gy
+                    if gy2 > a2:
+                        continue
+                yy = yv % hy
+                row = base[h] + (zz * hy + yy) * hx
+                for xv in range(x0, x1 + 1):
+                    if wrapx:
+                        gx = max(0.0, xv * csx[h] - xp, xp - (xv + 1) * csx[h])
+                        if gy2 + gx * gx > a2:
+                            continue
+                    cc = row + xv % hx
+                    for s in range(start[cc], start[cc + 1]):
+                        if fp and fs[s]:
+                            continue
+                        if _accept(px, py, pz, pr, xs[s], ys[s], zs[s], rs[s], Lx, Ly,
+                                   skin):
+                            if fill:
+                                out_q[out0 + cnt] = cell_particles[s]
+                            cnt += 1
+    return cnt
+
+
 @njit(cache=True, parallel=True)
 def _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base, rmax,
                 count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
                 found_count, found_start, out_q, fill):
-    """Count (fill=False) or write (fill=True) the partners q found by every particle p.
+    """Count (fill=False) or write (fill=True) the partners found by every particle, in parallel.
 
     ``xs, ys, zs, rs, fs, ls`` are x, y, z, radius, fixed and level in cell order (copies, so
     that the candidates of a cell are contiguous in memory); particles are processed in cell
-    order too.  Same-level partners through the half shell, finer-level partners through the
-    cross-level box; every pair is found by exactly one of its particles.  The distance test is
-    that of ``kernels._neighbour_rows`` on the same operands; it is symmetric in (i, j) bit for
-    bit (round-half-even rint is odd, a - b = -(b - a), + commutes), so whichever particle finds
-    the pair, the decision is the same.
+    order too.  Each particle writes only its own slice of ``out_q``: the result does not depend
+    on the number of threads.
     """
     n = xs.shape[0]
     for su in prange(n):
         sp = np.int64(su)  # prange may hand out unsigned indices
-        p = cell_particles[sp]
-        lv = ls[sp]
-        c = cell_of[p] - base[lv]
-        nx = ncx[lv]
-        ny = ncy[lv]
-        nz = ncz[lv]
-        cx = c % nx
-        cy = (c // nx) % ny
-        cz = c // (nx * ny)
-        px = xs[sp]
-        py = ys[sp]
-        pz = zs[sp]
-        pr = rs[sp]
-        fp = fs[sp]
-        cnt = 0
-        out0 = found_start[p] if fill else 0
-        # ---- step 1: linked cells on the level of insertion (half shell)
-        for k in range(noff[lv]):
-            zz = cz + offs[lv, k, 2]
-            if zz < 0 or zz >= nz:
-                continue
-            yy = cy + offs[lv, k, 1]
-            if yy < 0:
-                yy += ny
-            elif yy >= ny:
-                yy -= ny
-            xx = cx + offs[lv, k, 0]
-            if xx < 0:
-                xx += nx
-            elif xx >= nx:
-                xx -= nx
-            cc = base[lv] + (zz * ny + yy) * nx + xx
-            s0 = start[cc]
-            s1 = start[cc + 1]
-            if filts[lv, k]:
-                # own cell (or a self-inverse offset): keep each pair once, from the lower index
-                for s in range(s0, s1):
-                    q = cell_particles[s]
-                    if q <= p or (fp and fs[s]):
-                        continue
-                    dx = _min_image(px - xs[s], Lx)
-                    dy = _min_image(py - ys[s], Ly)
-                    dz = pz - zs[s]
-                    rc = pr + rs[s] + skin
-                    if dx * dx + dy * dy + dz * dz < rc * rc:
-                        if fill:
-                            out_q[out0 + cnt] = q
-                        cnt += 1
-            else:
-                for s in range(s0, s1):
-                    if fp and fs[s]:
-                        continue
-                    dx = _min_image(px - xs[s], Lx)
-                    dy = _min_image(py - ys[s], Ly)
-                    dz = pz - zs[s]
-                    rc = pr + rs[s] + skin
-                    if dx * dx + dy * dy + dz * dz < rc * rc:
-                        if fill:
-                            out_q[out0 + cnt] = cell_particles[s]
-                        cnt += 1
-        # ---- step 2: cross-level search on the finer levels (Eq. 25-26)
-        xp = px - Lx * np.floor(px / Lx)
-        yp = py - Ly * np.floor(py / Ly)
-        zp = pz - zmin
-        for h in range(lv):
-            if count[h] == 0:
-                continue
-            alpha = pr + rmax[h] + skin + margin
-            hx = ncx[h]
-            hy = ncy[h]
-            hz = ncz[h]
-            x0 = int(np.floor((xp - alpha) / csx[h]))
-            x1 = int(np.floor((xp + alpha) / csx[h]))
-            wrapx = x1 - x0 + 1 < hx
-            if not wrapx:
-                x0 = 0
-                x1 = hx - 1
-            y0 = int(np.floor((yp - alpha) / csy[h]))
-            y1 = int(np.floor((yp + alpha) / csy[h]))
-            wrapy = y1 - y0 + 1 < hy
-            if not wrapy:
-                y0 = 0
-                y1 = hy - 1
-            z0 = min(max(int(np.floor((zp - alpha) / csz[h])), 0), hz - 1)
-            z1 = min(max(int(np.floor((zp + alpha) / csz[h])), 0), hz - 1)
-            # visit only the cells of the box whose extent is within alpha of p (Euclidean);
-            # the top z cell is clamped (open above)
-            a2 = alpha * alpha
-            for zz in range(z0, z1 + 1):
-                gz = zz * csz[h] - zp
-                if gz < 0.0:
-                    gz = 0.0 if zz == hz - 1 else max(0.0, zp - (zz + 1) * csz[h])
-                gz2 = gz * gz
-                if gz2 > a2:
-                    continue
-                for yv in range(y0, y1 + 1):
-                    gy2 = gz2
-                    if wrapy:
-                        gy = max(0.0, yv * csy[h] - yp, yp - (yv + 1) * csy[h])
-                        gy2 += gy * gy
-                        if gy2 > a2:
-                            continue
-                    yy = yv % hy
-                    row = base[h] + (zz * hy + yy) * hx
-                    for xv in range(x0, x1 + 1):
-                        if wrapx:
-                            gx = max(0.0, xv * csx[h] - xp, xp - (xv + 1) * csx[h])
-                            if gy2 + gx * gx > a2:
-                                continue
-                        cc = row + xv % hx
-                        for s in range(start[cc], start[cc + 1]):
-                            if fp and fs[s]:
-                                continue
-                            dx = _min_image(px - xs[s], Lx)
-                            dy = _min_image(py - ys[s], Ly)
-                            dz = pz - zs[s]
-                            rc = pr + rs[s] + skin
-                            if dx * dx + dy * dy + dz * dz < rc * rc:
-                                if fill:
-                                    out_q[out0 + cnt] = cell_particles[s]
-                                cnt += 1
+        cnt = _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy,
+                             csz, base, rmax, count, zmin, margin, offs, filts, noff, cell_of,
+                             start, cell_particles, found_start, out_q, fill)
         if not fill:
-            found_count[p] = cnt
+            found_count[cell_particles[sp]] = cnt
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _gather(pos, radius, fixed, level_of, cell_particles, xs, ys, zs, rs, fs, ls):
-    for su in prange(cell_particles.shape[0]):
+    for su in range(cell_particles.shape[0]):
         i = cell_particles[su]
         xs[su] = pos[i, 0]
         ys[su] = pos[i, 1]
@@ -425,20 +464,24 @@ def _gather(pos, radius, fixed, level_of, cell_particles, xs, ys, zs, rs, fs, ls
 
 @njit(cache=True, parallel=True)
 def _sort_rows(row_start, pj):
+    """Sort every row of ``pj`` in place (Shell sort, Ciura gaps; plain insertion sort for the
+    short rows of a packing)."""
+    gaps = np.array([701, 301, 132, 57, 23, 10, 4, 1], dtype=np.int64)
     n = row_start.shape[0] - 1
-    for i in prange(n):
+    for iu in prange(n):
+        i = np.int64(iu)
         a = row_start[i]
-        b = row_start[i + 1]
-        if b - a > _INSERTION_MAX:
-            pj[a:b] = np.sort(pj[a:b])
-        else:
-            for u in range(a + 1, b):
-                v = pj[u]
-                w = u - 1
-                while w >= a and pj[w] > v:
-                    pj[w + 1] = pj[w]
-                    w -= 1
-                pj[w + 1] = v
+        m = row_start[i + 1] - a
+        for g in gaps:
+            if g >= m:
+                continue
+            for u in range(g, m):
+                v = pj[a + u]
+                w = u
+                while w >= g and pj[a + w - g] > v:
+                    pj[a + w] = pj[a + w - g]
+                    w -= g
+                pj[a + w] = v
 
 
 @njit(cache=True)

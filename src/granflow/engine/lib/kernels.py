@@ -26,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .hgrid import hgrid_pairs
+
 LAW_LINEAR = 0
 LAW_HERTZ = 1
 LAW_PLASTIC = 2
@@ -589,12 +591,13 @@ def compute_forces(
 @njit(cache=True)
 def advance(
     nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype, fixed,
-    Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, pos_ref, skin, cell_size, use_wall, wall_type,
+    Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, pos_ref, skin, level_of, level_cell, use_wall, wall_type,
     wall_hist, wall_dmax, law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt,
     pair_out, wall_out, max_overlap_allowed,
 ):
     """Advance ``nsteps`` velocity-Verlet steps (Eq. 11), rebuilding the neighbour list when a
-    particle has moved more than skin/2 since the last build.
+    particle has moved more than skin/2 since the last build (by the hierarchical grid of
+    :mod:`.hgrid` with the levels ``level_of``/``level_cell``; one level = plain cell list).
 
     Arrays are updated in place, except the pair arrays, which are returned (they change size on
     a rebuild).  Returns (pi, pj, hist_t, hist_dmax, pair_out, e_elastic, max_overlap,
@@ -616,7 +619,7 @@ def advance(
         if not np.isfinite(disp2):
             return pi, pj, hist_t, hist_dmax, pair_out, np.nan, max_ov, e_released, step + 1, nreb, 1
         if disp2 > half_skin2:
-            npi, npj = neighbour_pairs(pos, radius, fixed, Lx, Ly, skin, cell_size)
+            npi, npj = hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell)
             nt, nd = transfer_history(pi, pj, hist_t, hist_dmax, npi, npj, pos.shape[0])
             pi = npi
             pj = npj
