@@ -429,7 +429,7 @@ def _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx,
     return cnt
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)  # serial: cached parallel callees of cached callers segfaulted (numba cache)
 def _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base, rmax,
                 count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
                 found_count, found_start, out_q, fill):
@@ -462,7 +462,7 @@ def _gather(pos, radius, fixed, level_of, cell_particles, xs, ys, zs, rs, fs, ls
         ls[su] = level_of[i]
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)  # serial, see above
 def _sort_rows(row_start, pj):
     """Sort every row of ``pj`` in place (Shell sort, Ciura gaps; plain insertion sort for the
     short rows of a packing)."""
