@@ -82,6 +82,8 @@ def main(argv=None):
     p.add_argument("--t-end", type=float, default=20.0)
     p.add_argument("--threads", type=int, default=1)
     p.set_defaults(func=cmd_demo)
+    from .campaign.commands import register as _register_campaign
+    _register_campaign(sub)
 
     args = parser.parse_args(argv)
     _setup_logging(args.verbose)

@@ -1,0 +1,48 @@
+# granflow campaign workflow: parameter grid -> runs (coarse-grained and classified on the fly)
+# -> campaign table -> closure fits -> versioned closure library -> executed report.
+#
+#   snakemake --cores 2                                   # the default campaign (config/config.yaml)
+#   snakemake --cores 2 --configfile config/weinhart2012.yaml   # the paper's protocol (cluster!)
+#   snakemake --workflow-profile profiles/slurm           # on a Slurm cluster
+#   snakemake --report results/report.zip                 # Snakemake's own report
+#
+# Rules call the `granflow` command line (granflow simulate / prepare-base / campaign ...);
+# no physics lives in this workflow.  See README.md, "Campaign workflow".
+
+import os
+from pathlib import Path
+
+from snakemake.utils import min_version, validate
+
+min_version("8.0")
+
+REPO = Path(workflow.basedir)
+
+
+configfile: os.path.join(workflow.basedir, "config", "config.yaml")
+
+
+# Validation before any job: granflow's checker names the key and its allowed range (and adds
+# cross-field checks); snakemake.utils.validate then checks the same schema again.
+from granflow.campaign.config import check_config
+
+SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
+check_config(config, SCHEMA)
+validate(config, str(SCHEMA))
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/base.smk"
+include: "workflow/rules/simulate.smk"
+include: "workflow/rules/derive.smk"
+include: "workflow/rules/hstop.smk"
+include: "workflow/rules/collect.smk"
+include: "workflow/rules/fit.smk"
+include: "workflow/rules/library.smk"
+include: "workflow/rules/report.smk"
+
+
+rule all:
+    input:
+        final_targets(),
+    default_target: True

@@ -1,0 +1,260 @@
+"""Campaign-table rows from finished runs, and the campaign table itself.
+
+Coarse-graining (Weinhart et al. 2012 Eq. 13-43) and flow-state classification (§6) happen
+*inside* each ``granflow simulate`` job, on the fly; the job leaves ``summary.json`` (flow state,
+depth averages h, u_bar, F, alpha, K, rho_bar, rho_c with their time-window spreads) and
+``profiles.nc`` (depth profiles, per time window too).  :func:`derive_row` reads those into one
+campaign-table row (:mod:`granflow.fitting.table`) and, for a bidisperse run, fits the Peclet
+number Ps of T-eq. (28) to the small-particle fraction phi(z) over the last ``segregation_window``
+time units (mean profile; ``Ps_std`` = spread of the per-window fits).  :func:`collect_table`
+concatenates rows into the table (netCDF with CF attributes + CSV).
+
+Runs whose state is ``undecided`` (the cap was reached before the classifier could decide)
+cannot enter a campaign table (its ``state`` column admits only the five flow states): they are
+listed, with all their measured columns and the reason, in ``excluded_runs.csv`` instead.  The
+hstop fit still uses them as *flowing* runs (the paper's binary arrested/flowing rule, §6, see
+:mod:`granflow.campaign.fits`); no other fit does.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import units as U
+from ..fitting.table import (COLUMN_ATTRS, FLOW_STATES, MEASURED_COLUMNS, STRING_COLUMNS,
+                             campaign_table_from_records)
+from ..provenance import atomic_to_netcdf, atomic_write_bytes
+from .grid import parse_run_path
+from .serialize import dumps, fit_from_dict, fit_to_dict, from_jsonable
+
+#: summary.json depth-average names -> campaign-table columns
+_AVERAGES = {"flow_height": "h", "u_bar": "u_bar", "froude": "F", "alpha": "alpha", "K": "K",
+             "rho_bar": "rho_bar", "rho_c": "rho_c"}
+#: extra (non-schema) columns every row carries
+EXTRA_COLUMNS = ("kind", "run", "mu_bar", "t_final", "steady_start", "stop_reason", "n_flow",
+                 "state_confidence")
+EXTRA_ATTRS = {
+    "kind": {"long_name": "campaign the run belongs to (chute or segregation)"},
+    "run": {"long_name": "run directory relative to the campaign results folder"},
+    "mu_bar": U.cf(U.DIMENSIONLESS, "depth-averaged friction -sigma_xz_bar/sigma_zz_bar"),
+    "t_final": U.cf(U.TIME, "simulated time at the end of the run"),
+    "steady_start": U.cf(U.TIME, "onset of the steady window (NaN unless steady/layered)"),
+    "stop_reason": {"long_name": "why the run stopped"},
+    "n_flow": U.cf(U.DIMENSIONLESS, "number of flow particles"),
+    "state_confidence": U.cf(U.DIMENSIONLESS, "confidence of the flow-state classification"),
+}
+
+
+def _f(x):
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return math.nan
+    return x
+
+
+def small_fraction_profiles(ds, t_from: float):
+    """(z, phi_mean, [phi per window], windows used) of the small-particle volume fraction
+    phi = nu_small / (nu_small + nu_large), from the per-window profiles starting at or after
+    ``t_from`` (all windows with enough snapshots if none qualifies)."""
+    small = int(ds.attrs.get("cg_small_species", 0))
+    nu = np.asarray(ds["species_volume_fraction_window"].values, dtype=float)  # (w, s, z)
+    counts = np.asarray(ds["window_n_snapshots"].values, dtype=float)
+    starts = np.asarray(ds["window_time_start"].values, dtype=float)
+    full = counts >= 0.5 * counts.max()
+    use = full & (starts >= t_from - 1e-9)
+    if not use.any():
+        use = full
+    tot = nu.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        phi_w = np.where(tot > 0, nu[:, small, :] / np.where(tot > 0, tot, 1.0), np.nan)
+    weights = counts[use]
+    num = np.tensordot(weights, nu[use, small, :], axes=1)
+    den = np.tensordot(weights, tot[use], axes=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        phi = np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
+    return ds["z"].values, phi, phi_w[use], np.nonzero(use)[0]
+
+
+def segregation_fit(run_dir, sigma: float, law: str, window: float):
+    """Fit Ps (T-eq. 28) to a bidisperse run's phi(z) over the last ``window`` time units.
+
+    Depth is scaled to [0, 1] over [b, s] of Eq. (42) computed from the same windows' sigma_zz.
+    Returns (FitResult tagged with sigma/contact_law, Ps spread over windows, profile dict).
+    """
+    import xarray as xr
+
+    from ..coarse.derived import flow_height
+    from ..fitting import fit_Ps
+
+    with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
+        ds = src.load()
+    t_final = _f(ds.attrs.get("t_final"))
+    z, phi, phi_w, used = small_fraction_profiles(ds, t_final - window)
+    szz_w = np.asarray(ds["stress_zz_window"].values, dtype=float)[used]
+    counts = np.asarray(ds["window_n_snapshots"].values, dtype=float)[used]
+    szz = np.tensordot(counts, szz_w, axes=1) / counts.sum()
+    b, s, _, _ = flow_height(z, szz)
+    inside = (z >= b) & (z <= s) if np.isfinite(b) and np.isfinite(s) else np.zeros(z.shape, bool)
+    zeta = (z[inside] - b) / (s - b) if inside.any() else np.zeros(0)
+    fit = fit_Ps(zeta, phi[inside], sigma=sigma, contact_law=law)
+    per = []
+    for k in range(len(phi_w)):
+        r = fit_Ps(zeta, phi_w[k][inside], sigma=sigma, contact_law=law)
+        if r.ok:
+            per.append(r.params["Ps"])
+    spread = float(np.std(per, ddof=1)) if len(per) > 1 else math.nan
+    profile = {"zeta": zeta.tolist(), "phi": phi[inside].tolist(), "base": b, "surface": s,
+               "t_from": float(t_final - window), "n_windows": int(len(used))}
+    return fit, spread, profile
+
+
+def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.0) -> dict:
+    """One campaign-table row (plus extras) from a finished run directory (see module doc)."""
+    run_dir = Path(run_dir)
+    point = parse_run_path(rel if rel is not None else run_dir.as_posix())
+    with open(run_dir / "summary.json") as fh:
+        summ = json.load(fh)
+    avg = summ.get("depth_averages") or {}
+    row = {"theta": point.theta, "H": point.H, "lam": point.lam, "sigma": point.sigma,
+           "contact_law": point.law, "state": summ.get("flow_state", "undecided")}
+    for src, col in _AVERAGES.items():
+        row[col] = _f(avg.get(src))
+        row[f"{col}_std"] = _f(avg.get(f"{src}_std"))
+    row.update(Ps=math.nan, Ps_std=math.nan, phi0=math.nan, phi0_std=math.nan)
+    row.update(kind=point.kind, run=point.path, mu_bar=_f(avg.get("mu_bar")),
+               t_final=_f(summ.get("t_final")), steady_start=_f(summ.get("steady_start")),
+               stop_reason=str(summ.get("stop_reason", "")).split(":")[0],
+               n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")))
+    out = {"row": row, "excluded": None, "segregation_fit": None, "segregation_profile": None}
+    if row["state"] not in FLOW_STATES:
+        out["excluded"] = (f"flow state {row['state']!r} (not one of {FLOW_STATES}): "
+                           f"{summ.get('classification', '')}")
+    if point.kind == "segregation":
+        fit, spread, profile = segregation_fit(run_dir, point.sigma, point.law, segregation_window)
+        row["Ps"] = fit.params["Ps"]
+        row["Ps_std"] = spread
+        row["phi0"] = _f(fit.extra.get("phi0"))
+        out["segregation_fit"] = fit_to_dict(fit)
+        out["segregation_profile"] = profile
+    return out
+
+
+def write_row(run_dir, out, rel=None, segregation_window: float = 100.0) -> dict:
+    res = derive_row(run_dir, rel, segregation_window)
+    atomic_write_bytes(out, dumps(res).encode())
+    return res
+
+
+def read_rows(paths) -> list[dict]:
+    rows = []
+    for p in paths:
+        with open(p) as fh:
+            rows.append(from_jsonable(json.load(fh)))
+    return rows
+
+
+def _sort_key(r):
+    row = r["row"]
+    return (row["kind"], row["contact_law"], row["lam"], row["sigma"], row["theta"], row["H"])
+
+
+def table_dataset(table: pd.DataFrame, attrs=None):
+    """The campaign table as an xarray Dataset on dim ``row`` with CF attributes."""
+    import xarray as xr
+
+    data = {}
+    for col in table.columns:
+        a = dict(COLUMN_ATTRS.get(col) or EXTRA_ATTRS.get(col) or {"long_name": col})
+        if (col in STRING_COLUMNS or not pd.api.types.is_numeric_dtype(table[col])
+                or pd.api.types.is_bool_dtype(table[col])):
+            data[col] = ("row", np.array([str(v) for v in table[col]], dtype=object), a)
+        else:
+            data[col] = ("row", table[col].to_numpy(dtype=float), a)
+    ds = xr.Dataset(data, coords={"row": np.arange(len(table))})
+    ds["row"].attrs = {"long_name": "campaign table row"}
+    ds.attrs.update(attrs or {})
+    return ds
+
+
+def read_table(path) -> pd.DataFrame:
+    """Read a campaign table written by :func:`collect_table` (.nc or .csv)."""
+    path = Path(path)
+    if path.suffix == ".csv":
+        df = pd.read_csv(path, keep_default_na=True)
+    else:
+        import xarray as xr
+
+        with xr.open_dataset(path) as ds:
+            df = ds.to_dataframe().reset_index(drop=True)
+    for col in df.columns:
+        if col in STRING_COLUMNS or col in ("kind", "run", "stop_reason"):
+            df[col] = df[col].astype(str).astype(object)
+    return campaign_table_from_records(df.to_dict("records"))
+
+
+def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation=None,
+                  attrs=None) -> pd.DataFrame:
+    """Concatenate row files into the campaign table; write netCDF, CSV, excluded runs and the
+    per-run segregation fits (JSON list, input of the library's ``segregation`` kind)."""
+    results = sorted(read_rows(row_files), key=_sort_key)
+    seen, kept, excluded, seg = set(), [], [], []
+    for r in results:
+        run = r["row"]["run"]
+        if run in seen:
+            continue
+        seen.add(run)
+        if r["excluded"]:
+            excluded.append(dict(r["row"], reason=r["excluded"]))
+            continue
+        kept.append(r["row"])
+        if r["segregation_fit"] is not None:
+            seg.append({"run": run, "fit": r["segregation_fit"],
+                        "profile": r["segregation_profile"]})
+    cols = list(dict.fromkeys(
+        ["theta", "H", "lam", "sigma", "contact_law", "state", *MEASURED_COLUMNS,
+         *(f"{c}_std" for c in MEASURED_COLUMNS), *EXTRA_COLUMNS]))
+    if kept:
+        table = campaign_table_from_records(kept)
+    else:
+        table = campaign_table_from_records([])
+        for c in EXTRA_COLUMNS:
+            table[c] = pd.Series([], dtype=object if c in ("kind", "run", "stop_reason") else float)
+    table = table[[c for c in cols if c in table.columns]]
+    Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out_csv, table.to_csv(index=False, float_format="%.17g").encode())
+    atomic_to_netcdf(table_dataset(table, attrs), out_nc)
+    if out_excluded is not None:
+        ex_cols = ["run", "reason", "theta", "H", "lam", "sigma", "contact_law", "state",
+                   *[c for c in cols if c not in ("run", "theta", "H", "lam", "sigma",
+                                                  "contact_law", "state")]]
+        frame = pd.DataFrame(excluded)
+        frame = frame.reindex(columns=ex_cols)
+        atomic_write_bytes(out_excluded, frame.to_csv(index=False, float_format="%.17g").encode())
+    if out_segregation is not None:
+        atomic_write_bytes(out_segregation, dumps(seg).encode())
+    return table
+
+
+def read_excluded(path) -> pd.DataFrame:
+    """Excluded runs written by :func:`collect_table` (empty frame if none)."""
+    try:
+        frame = pd.read_csv(path)
+    except pd.errors.EmptyDataError:
+        return pd.DataFrame(columns=["run", "reason"])
+    for col in ("run", "reason", "contact_law", "state", "kind", "stop_reason"):
+        if col in frame:
+            frame[col] = frame[col].astype(str).astype(object)
+    return frame
+
+
+def segregation_fits(path) -> list:
+    """Per-run segregation FitResults stored by :func:`collect_table`."""
+    with open(path) as fh:
+        data = from_jsonable(json.load(fh))
+    return [fit_from_dict(d["fit"]) for d in data]

@@ -1,0 +1,121 @@
+"""Campaign configuration checks with messages that name the key and its allowed range.
+
+:func:`check_config` validates a configuration mapping against the workflow's JSON schema
+(``workflow/schemas/config.schema.yaml``; the Snakefile then also runs
+``snakemake.utils.validate`` on it) and adds the cross-field checks a schema cannot express
+(box at least 3 lambda wide, hstop search bounds ordered, at least one run).  Every error reads
+like ``config key campaigns.chute.grids[0].theta[1] = 95: must be < 90; allowed: inclination
+theta in degrees, in (0, 90)``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from .grid import campaign_cfg, enabled, expand_runs
+
+
+def load_yaml(path) -> dict:
+    with open(path) as fh:
+        return yaml.safe_load(fh) or {}
+
+
+def _key(path) -> str:
+    out = ""
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "<top level>"
+
+
+def _describe(err) -> str:
+    v = err.validator
+    s = err.schema if isinstance(err.schema, dict) else {}
+    desc = s.get("description", "")
+    if v == "additionalProperties":
+        allowed = sorted((s.get("properties") or {}).keys())
+        extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
+        return (f"unknown key(s) {extra} in {_key(err.absolute_path)}; allowed keys: {allowed}")
+    if v == "required":
+        return f"{_key(err.absolute_path)}: {err.message}"
+    where = _key(err.absolute_path)
+    what = {
+        "exclusiveMinimum": f"must be > {err.validator_value}",
+        "minimum": f"must be >= {err.validator_value}",
+        "exclusiveMaximum": f"must be < {err.validator_value}",
+        "maximum": f"must be <= {err.validator_value}",
+        "enum": f"must be one of {err.validator_value}",
+        "type": f"must be of type {err.validator_value}",
+    }.get(v, err.message)
+    return f"config key {where} = {err.instance!r}: {what}" + (f"; allowed: {desc}" if desc else "")
+
+
+def schema_errors(config: dict, schema) -> list[str]:
+    """All schema violations of ``config`` as readable one-line messages (empty if valid)."""
+    import jsonschema
+
+    if not isinstance(schema, dict):
+        schema = load_yaml(schema)
+    cls = jsonschema.validators.validator_for(schema)
+    validator = cls(schema)
+    errors = sorted(validator.iter_errors(config), key=lambda e: list(map(str, e.absolute_path)))
+    return [_describe(e) for e in errors]
+
+
+def semantic_errors(config: dict) -> list[str]:
+    """Cross-field checks the schema cannot express."""
+    out = []
+    for kind in ("chute", "segregation"):
+        c = campaign_cfg(config, kind)
+        if not enabled(config, kind):
+            continue
+        Lx, Ly = float(c.get("Lx", 20.0)), float(c.get("Ly", 10.0))
+        lams = []
+        if kind == "chute":
+            lams = list(c.get("lambda") or [1.0])
+            for block in (c.get("grids") or []) + (c.get("points") or []):
+                lams += list(block.get("lambda") or [])
+            lams += list((c.get("hstop_search") or {}).get("lambda") or [])
+        else:
+            lams = [c.get("lambda", 1.0)]
+        for lam in lams:
+            if lam > 0 and (Lx < 3 * lam or Ly < 3 * lam):
+                out.append(f"config key campaigns.{kind}.Lx/Ly = {Lx}, {Ly}: the box must be at "
+                           f"least 3 lambda = {3 * lam} wide for lambda = {lam}")
+        if kind == "segregation" and "sigma" not in c:
+            out.append("config key campaigns.segregation.sigma is missing: give the size ratios")
+        if kind == "segregation" and any(k not in c for k in ("theta", "H")):
+            out.append("config keys campaigns.segregation.theta and .H are required when the "
+                       "segregation campaign is enabled")
+        if kind == "chute":
+            s = c.get("hstop_search") or {}
+            if s.get("enabled") and s.get("theta_min", 5.0) >= s.get("theta_max", 40.0):
+                out.append("config keys campaigns.chute.hstop_search.theta_min/theta_max: "
+                           "theta_min must be below theta_max")
+    search_on = enabled(config, "chute") and bool(
+        (campaign_cfg(config, "chute").get("hstop_search") or {}).get("enabled"))
+    if not out and not expand_runs(config) and not search_on:
+        out.append("the configuration defines no runs: enable a campaign with a non-empty grid")
+    return out
+
+
+def check_config(config: dict, schema) -> dict:
+    """Raise ValueError listing every problem of ``config`` (schema, then cross-field checks)."""
+    errors = schema_errors(config, schema)
+    if not errors:
+        errors = semantic_errors(config)
+    if errors:
+        raise ValueError("invalid campaign configuration:\n  " + "\n  ".join(errors))
+    return config
+
+
+def default_schema_path() -> Path:
+    """The workflow schema next to the source tree (for checks outside Snakemake)."""
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        cand = parent / "workflow" / "schemas" / "config.schema.yaml"
+        if cand.is_file():
+            return cand
+    raise FileNotFoundError("workflow/schemas/config.schema.yaml not found above "
+                            f"{here.parent}; pass the schema path explicitly")

@@ -1,0 +1,198 @@
+"""Campaign grids: configuration -> run points -> readable run directories and run parameters.
+
+A run point is fully described by its directory (Paramspace style), relative to the campaign's
+results folder ``results/<name>/``::
+
+    chute/<law>/lambda~<lam>/theta~<theta>/H~<H>                  (closure runs, sigma = 1)
+    segregation/<law>/lambda~<lam>/theta~<theta>/H~<H>/sigma~<s>   (bidisperse runs)
+
+so that a rule can rebuild the run's parameters from its output path alone (the grid runs and
+the points proposed by the adaptive hstop search share one ``simulate`` rule).  Numbers are
+written as the shortest string that reads back to the same float, without a trailing ``.0``
+(``24``, ``0.5``, ``0.6666666666666666``).
+
+The configuration layout is documented key by key in ``config/config.yaml`` and checked by
+``workflow/schemas/config.schema.yaml``; this module only reads it.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+KINDS = ("chute", "segregation")
+
+#: configuration ``species`` keys -> run parameter names (granflow.simulate.PARAMETERS)
+SPECIES_KEYS = ("t_c", "e", "mu_c", "kt_over_kn", "gt_over_gn", "v_ref", "base_t_c", "base_e",
+                "base_mu_c")
+#: configuration ``numerics`` keys passed to every run as they are
+NUMERICS_KEYS = ("t_end", "averaging_time", "check_every", "min_accelerating_time",
+                 "steps_per_collision", "skin", "sample_interval", "cg_width", "cg_dz",
+                 "cg_window", "cg_every", "checkpoint_every_s", "seed", "early_stop")
+
+_NUM = r"[0-9][0-9.e+-]*"
+_RUN_RE = re.compile(
+    rf"(?P<kind>chute|segregation)/(?P<law>[A-Za-z_]+)/lambda~(?P<lam>{_NUM})/"
+    rf"theta~(?P<theta>{_NUM})/H~(?P<H>{_NUM})(?:/sigma~(?P<sigma>{_NUM}))?")
+#: regular expression of the ``point`` part of a run directory (for Snakemake wildcard constraints)
+POINT_REGEX = rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?"
+
+
+def format_value(x) -> str:
+    """Shortest string that reads back to the same float, without a trailing ``.0``."""
+    x = float(x)
+    if not math.isfinite(x):
+        raise ValueError(f"cannot put the non-finite value {x} into a run directory name")
+    s = repr(x)
+    if s.endswith(".0"):
+        s = s[:-2]
+    return s
+
+
+@dataclass(frozen=True, order=True)
+class RunPoint:
+    """One run of a campaign: kind ("chute" or "segregation"), contact law and grid values."""
+
+    kind: str
+    law: str
+    lam: float
+    theta: float
+    H: float
+    sigma: float = 1.0
+
+    @property
+    def path(self) -> str:
+        """Run directory relative to the campaign's results folder."""
+        return run_path(self)
+
+    @property
+    def point(self) -> str:
+        """The ``lambda~/theta~/H~[/sigma~]`` part of the run directory."""
+        return self.path.split("/", 2)[2]
+
+
+def run_path(p: RunPoint) -> str:
+    if p.kind not in KINDS:
+        raise ValueError(f"run kind {p.kind!r} is unknown: allowed {KINDS}")
+    s = (f"{p.kind}/{p.law}/lambda~{format_value(p.lam)}/theta~{format_value(p.theta)}/"
+         f"H~{format_value(p.H)}")
+    if p.kind == "segregation":
+        s += f"/sigma~{format_value(p.sigma)}"
+    return s
+
+
+def parse_run_path(path: str) -> RunPoint:
+    """Inverse of :func:`run_path` (accepts a longer path that contains a run directory)."""
+    m = _RUN_RE.search(str(path).replace("\\", "/"))
+    if m is None:
+        raise ValueError(f"{path!r} is not a campaign run directory "
+                         "(<kind>/<law>/lambda~L/theta~T/H~H[/sigma~S])")
+    g = m.groupdict()
+    if g["kind"] == "segregation" and g["sigma"] is None:
+        raise ValueError(f"segregation run directory {path!r} lacks sigma~")
+    return RunPoint(g["kind"], g["law"], float(g["lam"]), float(g["theta"]), float(g["H"]),
+                    float(g["sigma"]) if g["sigma"] is not None else 1.0)
+
+
+def _as_list(x):
+    if x is None:
+        return []
+    return list(x) if isinstance(x, (list, tuple)) else [x]
+
+
+def campaign_cfg(config: dict, kind: str) -> dict:
+    return (config.get("campaigns") or {}).get(kind) or {}
+
+
+def enabled(config: dict, kind: str) -> bool:
+    c = campaign_cfg(config, kind)
+    return bool(c) and bool(c.get("enabled", True))
+
+
+def chute_points(config: dict) -> list[RunPoint]:
+    """Grid runs of the "chute" campaign: the union of the products in ``grids`` and the
+    explicit ``points``; each block may override ``lambda`` and ``contact_law``."""
+    c = campaign_cfg(config, "chute")
+    if not enabled(config, "chute"):
+        return []
+    laws0, lams0 = _as_list(c.get("contact_law", ["linear"])), _as_list(c.get("lambda", [1.0]))
+    out = set()
+    for block in c.get("grids") or []:
+        for law in _as_list(block.get("contact_law", laws0)):
+            for lam in _as_list(block.get("lambda", lams0)):
+                for theta in _as_list(block.get("theta")):
+                    for H in _as_list(block.get("H")):
+                        out.add(RunPoint("chute", str(law), float(lam), float(theta), float(H)))
+    for pt in c.get("points") or []:
+        for law in _as_list(pt.get("contact_law", laws0)):
+            for lam in _as_list(pt.get("lambda", lams0)):
+                out.add(RunPoint("chute", str(law), float(lam), float(pt["theta"]), float(pt["H"])))
+    return sorted(out)
+
+
+def segregation_points(config: dict) -> list[RunPoint]:
+    """Runs of the "segregation" campaign: one per (contact law, size ratio sigma)."""
+    c = campaign_cfg(config, "segregation")
+    if not enabled(config, "segregation"):
+        return []
+    out = set()
+    for law in _as_list(c.get("contact_law", ["linear"])):
+        for sigma in _as_list(c.get("sigma")):
+            out.add(RunPoint("segregation", str(law), float(c.get("lambda", 1.0)),
+                             float(c["theta"]), float(c["H"]), float(sigma)))
+    return sorted(out)
+
+
+def expand_runs(config: dict) -> list[RunPoint]:
+    """Every grid run of a configuration (chute grid, then segregation sweep), sorted."""
+    return chute_points(config) + segregation_points(config)
+
+
+def box(config: dict, kind: str) -> tuple[float, float]:
+    c = campaign_cfg(config, kind)
+    return float(c.get("Lx", 20.0)), float(c.get("Ly", 10.0))
+
+
+def base_settings(config: dict) -> dict:
+    b = config.get("base") or {}
+    return {"layers": float(b.get("layers", 12.0)), "settle_time": float(b.get("settle_time", 30.0)),
+            "seed": int(b.get("seed", 1))}
+
+
+def base_path(config: dict, p: RunPoint) -> str:
+    """Rough-base file of a run, relative to the campaign folder: one per (lambda, box)."""
+    Lx, Ly = box(config, p.kind)
+    return f"bases/lambda~{format_value(p.lam)}/box~{format_value(Lx)}x{format_value(Ly)}/base.npy"
+
+
+def parse_base_path(path: str) -> tuple[float, float, float]:
+    m = re.search(rf"lambda~(?P<lam>{_NUM})/box~(?P<Lx>{_NUM})x(?P<Ly>{_NUM})", str(path))
+    if m is None:
+        raise ValueError(f"{path!r} is not a base path (bases/lambda~L/box~LXxLY/base.npy)")
+    return float(m["lam"]), float(m["Lx"]), float(m["Ly"])
+
+
+def run_params(config: dict, p: RunPoint) -> dict:
+    """Complete ``granflow simulate`` parameters of run ``p`` (validated by the job itself).
+
+    Layering: species, then ``numerics``, then the campaign's own ``numerics`` overrides, then
+    the box, base thickness and the grid values of the point.
+    """
+    species = config.get("species") or {}
+    numerics = dict(config.get("numerics") or {})
+    c = campaign_cfg(config, p.kind)
+    numerics.update(c.get("numerics") or {})
+    params = {k: species[k] for k in SPECIES_KEYS if species.get(k) is not None}
+    params.update({k: numerics[k] for k in NUMERICS_KEYS if numerics.get(k) is not None})
+    Lx, Ly = box(config, p.kind)
+    params.update(theta=p.theta, H=p.H, lam=p.lam, Lx=Lx, Ly=Ly, contact_law=p.law,
+                  base_layers=base_settings(config)["layers"])
+    if p.kind == "segregation":
+        params.update(sigma=p.sigma, phi0=float(c.get("phi0", 0.5)))
+    return {k: (float(v) if isinstance(v, int) and not isinstance(v, bool) and k != "seed"
+                and k != "cg_every" else v) for k, v in params.items()}
+
+
+def threads(config: dict) -> int:
+    return int((config.get("numerics") or {}).get("threads", 1))

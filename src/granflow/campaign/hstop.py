@@ -1,0 +1,78 @@
+"""The adaptive hstop search (Weinhart et al. 2012 §6) as a chain of Snakemake checkpoint steps.
+
+Step 0 writes the initial :class:`granflow.steady.hstop_search.HstopSearch` state; step i
+(i >= 1) reads state i - 1, takes the run at the point it proposed (an ordinary campaign run
+``chute/<law>/lambda~L/theta~T/H~H``, simulated by the shared ``simulate`` rule and therefore
+reused if the grid already has it), records that run's flow state and writes state i.  The
+workflow follows the chain until a state has no next point.  Every state file is plain JSON
+(``HstopSearch.state_dict`` plus the law and lambda), so the walk resumes after any
+interruption at the last finished step.
+"""
+
+from __future__ import annotations
+
+import json
+
+from ..provenance import atomic_write_bytes
+from ..steady.hstop_search import HstopSearch
+from .grid import RunPoint, parse_run_path
+
+#: HstopSearch keyword arguments that a configuration may set
+SEARCH_KEYS = ("theta0", "H0", "dtheta_up", "dtheta_down", "dH", "H_max", "theta_max",
+               "theta_min", "max_runs")
+
+
+def search_settings(cfg: dict) -> dict:
+    return {k: cfg[k] for k in SEARCH_KEYS if cfg.get(k) is not None}
+
+
+def init_state(law: str, lam: float, settings: dict) -> dict:
+    s = HstopSearch(**settings)
+    return {"law": law, "lam": float(lam), "step": 0, "search": s.state_dict()}
+
+
+def next_point(state: dict) -> RunPoint | None:
+    nxt = state["search"]["next"]
+    if nxt is None:
+        return None
+    return RunPoint("chute", state["law"], float(state["lam"]), float(nxt[0]), float(nxt[1]))
+
+
+def step_state(state: dict, run_summary_path, run_rel: str | None = None) -> dict:
+    """Record the flow state of the run at the proposed point; return the next state."""
+    point = next_point(state)
+    if point is None:
+        raise ValueError("the hstop search is already finished; no further step")
+    if run_rel is not None:
+        got = parse_run_path(run_rel)
+        if (abs(got.theta - point.theta) > 1e-9 or abs(got.H - point.H) > 1e-9
+                or got.law != point.law or abs(got.lam - point.lam) > 1e-9):
+            raise ValueError(f"run {run_rel} is not the proposed point {point.path}")
+    with open(run_summary_path) as fh:
+        flow_state = json.load(fh)["flow_state"]
+    search = HstopSearch.from_state_dict(state["search"])
+    search.record(point.theta, point.H, flow_state)
+    return {"law": state["law"], "lam": state["lam"], "step": int(state["step"]) + 1,
+            "search": search.state_dict(),
+            "last": {"theta": point.theta, "H": point.H, "flow_state": flow_state,
+                     "run": point.path}}
+
+
+def read_state(path) -> dict:
+    with open(path) as fh:
+        return json.load(fh)
+
+
+def write_state(state: dict, out):
+    atomic_write_bytes(out, json.dumps(state, indent=1, sort_keys=True).encode())
+
+
+def search_runs(state: dict) -> list[RunPoint]:
+    """The simulated runs of a (final) search state."""
+    return [RunPoint("chute", state["law"], float(state["lam"]), float(t), float(h))
+            for t, h, _ in state["search"]["runs"]]
+
+
+def intervals(state: dict):
+    """[(H, theta_arrested, theta_flowing)] of a search state (complete brackets only)."""
+    return HstopSearch.from_state_dict(state["search"]).intervals()

@@ -1,0 +1,371 @@
+"""Unit tests of granflow.campaign: grids, run directories, configuration checks, the hstop
+checkpoint chain, table collection, fit serialisation, library versioning, report rendering."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from granflow.campaign import grid as G
+from granflow.campaign import hstop as HS
+from granflow.campaign.collect import collect_table, read_table
+from granflow.campaign.config import check_config, schema_errors
+from granflow.campaign.fits import closure_rows, read_fits, run_fits, write_fits
+from granflow.campaign.library import publish_library
+from granflow.campaign.serialize import fit_from_dict, fit_to_dict
+from granflow.closures import library_versions, open_library
+from granflow.fitting import FitResult, fit_Ps
+from granflow.simulate import validate_params
+from granflow.steady.hstop_search import run_hstop_search
+
+REPO = Path(__file__).resolve().parents[1]
+SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
+
+
+def load(name):
+    with open(REPO / "config" / name) as fh:
+        return yaml.safe_load(fh)
+
+
+def merged(*names):
+    from granflow.campaign.commands import _merge
+
+    cfg = {}
+    for n in names:
+        _merge(cfg, load(n))
+    return cfg
+
+
+# ----------------------------------------------------------------------------- grid
+@pytest.mark.parametrize("x, s", [(24.0, "24"), (0.5, "0.5"), (2 / 3, "0.6666666666666666"),
+                                  (1e-5, "1e-05"), (83.3, "83.3")])
+def test_format_value_is_short_and_exact(x, s):
+    assert G.format_value(x) == s
+    assert float(G.format_value(x)) == x
+
+
+def test_run_path_round_trip_and_paramspace_layout():
+    p = G.RunPoint("chute", "linear", 1.0, 24.0, 10.0)
+    assert p.path == "chute/linear/lambda~1/theta~24/H~10"
+    q = G.RunPoint("segregation", "hertz", 2 / 3, 25.5, 8.0, 0.5)
+    assert q.path == "segregation/hertz/lambda~0.6666666666666666/theta~25.5/H~8/sigma~0.5"
+    for r in (p, q):
+        assert G.parse_run_path(f"results/x/{r.path}/summary.json") == r
+    with pytest.raises(ValueError, match="not a campaign run directory"):
+        G.parse_run_path("results/x/chute/linear/theta~24")
+
+
+@pytest.mark.parametrize("names", [("config.yaml",), ("config.yaml", "test-tiny.yaml"),
+                                   ("weinhart2012.yaml",)])
+def test_shipped_configs_are_valid_and_every_run_validates(names):
+    cfg = merged(*names)
+    check_config(cfg, SCHEMA)
+    runs = G.expand_runs(cfg)
+    assert runs and len(set(r.path for r in runs)) == len(runs)
+    for r in runs:
+        p = validate_params(G.run_params(cfg, r))  # the job's own check passes
+        assert (p["theta"], p["H"], p["lam"], p["contact_law"]) == (r.theta, r.H, r.lam, r.law)
+        if r.kind == "segregation":
+            assert p["sigma"] == r.sigma and 0 < p["phi0"] < 1
+
+
+def test_default_campaign_covers_every_closure():
+    cfg = load("config.yaml")
+    runs = G.expand_runs(cfg)
+    chute = [r for r in runs if r.kind == "chute"]
+    seg = [r for r in runs if r.kind == "segregation"]
+    assert len({r.H for r in chute}) >= 4          # >= 4 hstop brackets possible
+    assert len({r.theta for r in chute if r.H >= 10}) >= 5   # density needs h > 6
+    assert len({r.sigma for r in seg}) >= 5 and all(r.sigma < 1 for r in seg)
+    assert "reductions" in cfg["library"] and "t_c" in cfg["library"]["reductions"]
+    # all runs share one base per (lambda, box)
+    assert len({G.base_path(cfg, r) for r in runs}) == 1
+
+
+def test_weinhart2012_is_the_paper_protocol():
+    cfg = load("weinhart2012.yaml")
+    assert cfg["species"]["t_c"] == 0.005 and cfg["species"]["e"] == 0.88
+    c = cfg["campaigns"]["chute"]
+    assert (c["Lx"], c["Ly"]) == (20.0, 10.0)
+    assert cfg["numerics"]["t_end"] == 2000.0 and cfg["numerics"]["averaging_time"] == 100.0
+    assert sorted(c["lambda"]) == pytest.approx([0, 1 / 2, 2 / 3, 5 / 6, 1, 2])
+    assert {10.0, 40.0} <= set(c["grids"][0]["H"])
+    s = cfg["campaigns"]["segregation"]
+    assert (s["Lx"], s["Ly"], s["theta"]) == (83.3, 5.0, 25.0)
+    n_small = s["phi0"] * s["H"] * s["Lx"] * s["Ly"]
+    assert n_small == pytest.approx(5000.0)
+
+
+# ----------------------------------------------------------------------------- config checks
+BAD = [
+    (("campaigns", "chute", "grids", 0, "theta", 0), 90.0, "theta[0] = 90.0", "(0, 90)"),
+    (("campaigns", "chute", "grids", 0, "theta", 0), 0.0, "theta[0] = 0.0", "(0, 90)"),
+    (("campaigns", "chute", "grids", 0, "H", 0), 0.0, "H[0] = 0.0", "> 0"),
+    (("campaigns", "chute", "lambda", 0), -0.5, "lambda[0] = -0.5", "[0, 10]"),
+    (("campaigns", "segregation", "sigma", 0), 1.5, "sigma[0] = 1.5", "(0, 1]"),
+    (("campaigns", "segregation", "sigma", 0), 0.0, "sigma[0] = 0.0", "(0, 1]"),
+    (("campaigns", "chute", "contact_law", 0), "foo", "contact_law[0] = 'foo'",
+     "linear, hertz, plastic"),
+    (("numerics", "t_end"), -1.0, "numerics.t_end = -1.0", "> 0"),
+]
+
+
+def _set(cfg, path, value):
+    node = cfg
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+
+
+@pytest.mark.parametrize("path, value, key, allowed", BAD)
+def test_bad_values_name_key_and_range(path, value, key, allowed):
+    cfg = copy.deepcopy(load("config.yaml"))
+    _set(cfg, path, value)
+    with pytest.raises(ValueError) as exc:
+        check_config(cfg, SCHEMA)
+    msg = str(exc.value)
+    assert key in msg and allowed in msg
+
+
+def test_unknown_keys_are_rejected_at_every_level():
+    cfg = copy.deepcopy(load("config.yaml"))
+    cfg["campaigns"]["chute"]["grids"][0]["thetta"] = [20.0]
+    cfg["speciess"] = {}
+    errors = schema_errors(cfg, SCHEMA)
+    assert any("thetta" in e and "allowed keys" in e for e in errors)
+    assert any("speciess" in e for e in errors)
+
+
+def test_box_smaller_than_three_lambda_is_rejected():
+    cfg = copy.deepcopy(load("config.yaml"))
+    cfg["campaigns"]["chute"]["lambda"] = [2.0]
+    cfg["campaigns"]["chute"]["Ly"] = 5.0
+    with pytest.raises(ValueError, match="at least 3 lambda"):
+        check_config(cfg, SCHEMA)
+
+
+# ----------------------------------------------------------------------------- hstop chain
+def _oracle(theta, H):
+    """A made-up demarcation: flowing iff H > 40 (tan 30 - tan theta)/(tan theta - tan 20)."""
+    t = math.tan(math.radians(theta))
+    h = 4.0 * (math.tan(math.radians(30)) - t) / (t - math.tan(math.radians(20)))
+    return "steady" if theta >= 30 or (theta > 20 and H > h) else "arrested"
+
+
+def test_checkpoint_chain_reproduces_the_search(tmp_path):
+    settings = {"theta0": 21.0, "H0": 4.0, "max_runs": 25}
+    state = HS.init_state("linear", 1.0, settings)
+    HS.write_state(state, tmp_path / "step~0.json")
+    i = 0
+    while (p := HS.next_point(HS.read_state(tmp_path / f"step~{i}.json"))) is not None:
+        summ = tmp_path / f"{i}.json"
+        summ.write_text(json.dumps({"flow_state": _oracle(p.theta, p.H)}))
+        new = HS.step_state(HS.read_state(tmp_path / f"step~{i}.json"), summ, p.path)
+        i += 1
+        HS.write_state(new, tmp_path / f"step~{i}.json")
+    final = HS.read_state(tmp_path / f"step~{i}.json")
+    ref = run_hstop_search(_oracle, **settings)
+    assert [tuple(r) for r in final["search"]["runs"]] == [tuple(r) for r in ref.state_dict()["runs"]]
+    assert HS.intervals(final) == ref.intervals() and len(ref.intervals()) >= 3
+    assert [r.path for r in HS.search_runs(final)][0] == "chute/linear/lambda~1/theta~21/H~4"
+    with pytest.raises(ValueError, match="already finished"):
+        HS.step_state(final, summ)
+
+
+def test_step_refuses_a_run_that_was_not_proposed(tmp_path):
+    state = HS.init_state("linear", 1.0, {"theta0": 21.0, "H0": 4.0})
+    summ = tmp_path / "s.json"
+    summ.write_text(json.dumps({"flow_state": "arrested"}))
+    with pytest.raises(ValueError, match="not the proposed point"):
+        HS.step_state(state, summ, "chute/linear/lambda~1/theta~22/H~4")
+
+
+# ----------------------------------------------------------------------------- table, fits, library
+def _synthetic_rows(tmp_path):
+    """Row files of a synthetic campaign obeying the paper's closures (lambda = 1)."""
+    from granflow.fitting import density_eq52, froude_eq47, hstop_eq45, stress_ratio_eq53
+
+    rng = np.random.default_rng(3)
+    hs = dict(delta1=17.7, delta2=32.8, A=3.4)
+    files = []
+
+    def add(row, seg=None):
+        out = {"row": row, "excluded": None, "segregation_fit": seg, "segregation_profile":
+               {"zeta": [0.0, 1.0], "phi": [0.5, 0.5], "base": 0.0, "surface": 1.0,
+                "t_from": 0.0, "n_windows": 1} if seg else None}
+        f = tmp_path / f"row{len(files)}.json"
+        from granflow.campaign.serialize import dumps
+
+        f.write_text(dumps(out))
+        files.append(f)
+
+    base = dict(lam=1.0, sigma=1.0, contact_law="linear", kind="chute", mu_bar=0.4, t_final=100.0,
+                steady_start=20.0, stop_reason="steady", n_flow=100.0, state_confidence=0.9)
+    for H in (2.0, 4.0, 6.0, 10.0, 20.0):
+        for theta in (19.0, 21.0, 23.0, 25.0, 27.0, 29.0):
+            flowing = H > hstop_eq45(theta, **hs)
+            h = 0.9 * H
+            F = froude_eq47(h, theta, 0.2, 0.05, **hs) if flowing else 0.0
+            row = dict(base, theta=theta, H=H, state="steady" if flowing else "arrested",
+                       h=h, h_std=0.01, u_bar=F, u_bar_std=0.01, F=F * (1 + 0.01 * rng.normal()),
+                       F_std=0.01, alpha=1.2 + 0.01 * rng.normal(), alpha_std=0.01,
+                       K=stress_ratio_eq53(theta, 130.0, 21.0) + 0.002 * rng.normal(), K_std=0.01,
+                       rho_bar=1.0, rho_bar_std=0.01,
+                       rho_c=float(density_eq52(theta, 0.6, 4.8, 40.0)) + 0.001 * rng.normal()
+                       if h > 6 else math.nan, rho_c_std=0.001,
+                       run=f"chute/linear/lambda~1/theta~{theta:g}/H~{H:g}")
+            add(row)
+    for sigma in (0.5, 0.6, 0.7, 0.8, 0.9):
+        Ps = 7.0 * (1 - math.exp(-5.0 * (1 / sigma - 1)))
+        z = np.linspace(0, 1, 40)
+        from granflow.fitting import phi_teq28
+
+        fit = fit_Ps(z, phi_teq28(z, Ps, 0.5) + 0.002 * rng.normal(size=z.size), sigma=sigma,
+                     contact_law="linear")
+        row = dict(base, kind="segregation", theta=25.0, H=8.0, sigma=sigma, state="steady",
+                   h=7.0, F=0.5, Ps=fit.params["Ps"], Ps_std=0.1, phi0=0.5,
+                   run=f"segregation/linear/lambda~1/theta~25/H~8/sigma~{sigma:g}")
+        add(row, fit_to_dict(fit))
+    # an undecided run is excluded, with its reason
+    f = tmp_path / "undecided.json"
+    from granflow.campaign.serialize import dumps
+
+    f.write_text(dumps({"row": dict(base, theta=30.0, H=2.0, state="undecided",
+                                    run="chute/linear/lambda~1/theta~30/H~2"),
+                        "excluded": "flow state 'undecided'", "segregation_fit": None,
+                        "segregation_profile": None}))
+    files.append(f)
+    return files
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("campaign")
+    rows = _synthetic_rows(d)
+    table = collect_table(rows, d / "t.nc", d / "t.csv", d / "ex.csv", d / "seg.json")
+    from granflow.campaign.collect import segregation_fits
+
+    fits = run_fits(read_table(d / "t.nc"), segregation_fits(d / "seg.json"), n_bootstrap=20)
+    return d, table, fits
+
+
+def test_collect_writes_a_valid_table_and_lists_excluded_runs(campaign):
+    from granflow.campaign.collect import read_excluded
+
+    d, table, _ = campaign
+    assert len(table) == 35
+    ex = read_excluded(d / "ex.csv")
+    assert list(ex["run"]) == ["chute/linear/lambda~1/theta~30/H~2"]
+    assert (ex["state"].iloc[0], ex["theta"].iloc[0], ex["H"].iloc[0]) == ("undecided", 30.0, 2.0)
+    for path in (d / "t.nc", d / "t.csv"):
+        back = read_table(path)
+        assert len(back) == 35 and set(back["state"]) == {"arrested", "steady"}
+        np.testing.assert_array_equal(back["theta"].to_numpy(), table["theta"].to_numpy())
+    import xarray as xr
+
+    with xr.open_dataset(d / "t.nc") as ds:
+        assert ds["theta"].attrs["units"] and ds["h"].attrs["long_name"]
+
+
+def test_campaign_fits_recover_the_synthetic_closures(campaign):
+    _, _, fits = campaign
+    by = {(r.kind, r.coords.get("sigma")): r for r in fits}
+    for kind in ("hstop", "flow_rule", "friction", "alpha", "density", "stress_ratio", "Ps_law"):
+        r = by[(kind, None)]
+        assert r.ok, (kind, r.message)
+        fitted = [k for k, v in r.params.items() if np.isfinite(v)]  # alpha: one of two
+        assert fitted and all(np.isfinite(r.stderr[k]) and r.stderr[k] > 0 for k in fitted), \
+            (kind, r.stderr)
+    assert by[("flow_rule", None)].params["beta"] == pytest.approx(0.2, rel=0.25)
+    assert by[("density", None)].params["c0"] == pytest.approx(0.6, abs=0.01)
+    assert by[("stress_ratio", None)].params["d0"] == pytest.approx(130, rel=0.1)
+    assert by[("Ps_law", None)].params["Pmax"] == pytest.approx(7.0, rel=0.1)
+    assert sum(r.kind == "segregation" for r in fits) == 5
+
+
+def test_undecided_runs_count_as_flowing_for_hstop_only(campaign):
+    from granflow.campaign.collect import read_excluded, segregation_fits
+    from granflow.campaign.fits import binary_intervals
+
+    d, table, fits = campaign
+    ex = read_excluded(d / "ex.csv")
+    iv = binary_intervals(pd.concat([table, ex[table.columns.intersection(ex.columns)]]))
+    row = iv[iv["H"] == 2.0].iloc[0]
+    assert row["theta_flowing_min"] <= 30.0      # the undecided run at 30 deg flows
+    refit = run_fits(read_table(d / "t.nc"), segregation_fits(d / "seg.json"), n_bootstrap=20,
+                     excluded=ex)
+    by_old = {(r.kind, r.coords.get("sigma")): r for r in fits}
+    by_new = {(r.kind, r.coords.get("sigma")): r for r in refit}
+    assert "1 of them undecided" in by_new[("hstop", None)].message
+    for kind in ("density", "stress_ratio", "Ps_law"):   # unaffected
+        assert by_new[(kind, None)].params == by_old[(kind, None)].params
+    assert by_new[("flow_rule", None)].ok and by_new[("flow_rule", None)].n_points == \
+        by_old[("flow_rule", None)].n_points       # still steady runs only
+    assert sorted(r.kind for r in refit) == sorted(r.kind for r in fits)
+
+
+def test_fit_json_round_trip_is_exact(campaign, tmp_path):
+    _, _, fits = campaign
+    write_fits(fits, tmp_path / "f.json", tmp_path / "c.csv")
+    back = read_fits(tmp_path / "f.json")
+    assert [fit_to_dict(r) for r in back] == [fit_to_dict(r) for r in fits]
+    r = fits[0]
+    assert fit_from_dict(fit_to_dict(r)).params == r.params
+    rows = pd.read_csv(tmp_path / "c.csv")
+    assert {"kind", "parameter", "value", "stderr"} <= set(rows.columns)
+    assert len(rows) == len(closure_rows(fits))
+
+
+def test_library_is_versioned_by_content_and_never_overwritten(campaign, tmp_path):
+    d, _, fits = campaign
+    table = read_table(d / "t.nc")
+    libdir = tmp_path / "lib"
+    a = publish_library(libdir, "lib", fits, table, out=tmp_path / "a.nc",
+                        manifest=tmp_path / "a.json", reductions="test")
+    b = publish_library(libdir, "lib", fits, table, out=tmp_path / "b.nc")
+    assert (a["version"], a["reused"]) == (1, False)
+    assert (b["version"], b["reused"]) == (1, True)
+    assert library_versions(libdir, "lib") == [1]
+    assert json.loads((tmp_path / "a.json").read_text())["content_hash"] == a["content_hash"]
+    changed = table.copy()
+    changed.loc[0, "h"] = changed.loc[0, "h"] + 1e-9
+    c = publish_library(libdir, "lib", fits, changed, out=tmp_path / "c.nc")
+    assert (c["version"], c["reused"]) == (2, False)
+    assert library_versions(libdir, "lib") == [1, 2]
+    lib1, lib2 = open_library(tmp_path / "a.nc"), open_library(tmp_path / "c.nc")
+    assert lib1.attrs["content_hash"] != lib2.attrs["content_hash"]
+    assert lib1.attrs["reductions_vs_paper"] == "test"
+    assert open_library(libdir / "lib-v1.nc").attrs["content_hash"] == a["content_hash"]
+
+
+def test_failed_fit_serialises(tmp_path):
+    r = FitResult("hstop", "Eq. (45)", {"delta1": math.nan}, {"delta1": math.nan}, math.nan, 0,
+                  False, "too few", coords={"lam": 1.0})
+    assert math.isnan(fit_from_dict(json.loads(json.dumps(fit_to_dict(r)))).params["delta1"])
+
+
+# ----------------------------------------------------------------------------- report rendering
+def test_report_renders_markdown_code_and_png(tmp_path):
+    from granflow.campaign.report import render_report
+
+    src = tmp_path / "nb.py"
+    src.write_text(
+        "# %% [markdown]\n# # Title here\n\n"
+        "# %% tags=[\"parameters\"]\nX = 1\n\n"
+        "# %%\nimport matplotlib.pyplot as plt\nfrom IPython.display import display\n"
+        "get_ipython().run_line_magic('matplotlib', 'inline')\n"
+        "fig, ax = plt.subplots()\nax.plot([0, X], [0, 1])\ndisplay(fig)\nprint('X is', X)\n")
+    out = render_report(src, tmp_path / "r.html", {"X": 7}, out_ipynb=tmp_path / "r.ipynb",
+                        cwd=tmp_path, timeout=120)
+    html = out.read_text()
+    assert "<h1>Title here</h1>" in html
+    assert "data:image/png;base64," in html
+    assert "X is 7" in html          # the injected parameter overrides the default
+    assert (tmp_path / "r.ipynb").exists()

@@ -1,0 +1,216 @@
+"""Integration tests of the Snakemake campaign workflow (Snakefile, workflow/, config/).
+
+* the tiny campaign (config/test-tiny.yaml) runs end to end -- bases, grid runs, the adaptive
+  hstop search as a checkpoint chain, rows, table, fits, library, executed report -- and its
+  library opens with the consumption API;
+* `snakemake --lint` is clean;
+* every invalid configuration fails before any job starts, naming the key and its range;
+* a simulation job killed with SIGKILL mid-run, then the workflow rerun, ends with the same
+  library content as the undisturbed run (the job resumes from its checkpoint);
+* rerunning the library step with unchanged data reuses the library version.
+
+Each workflow runs in its own temporary working directory (``--directory``), so the tests never
+touch the repository's results/ or .snakemake/.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from granflow.closures import campaign_table, library_versions, open_library
+
+REPO = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+TINY = REPO / "config" / "test-tiny.yaml"
+RESULTS = Path("results") / "test-tiny"
+
+
+def snakemake(workdir, *args, timeout=600, configfile=TINY):
+    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(workdir),
+           *args]
+    if configfile is not None:
+        cmd += ["--configfile", str(configfile)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+
+
+def _check(proc):
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
+    return proc
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """The tiny campaign, run once undisturbed (shared by the tests of this module)."""
+    work = tmp_path_factory.mktemp("tiny")
+    t0 = time.monotonic()
+    _check(snakemake(work, "--cores", "2"))
+    return work, time.monotonic() - t0
+
+
+def test_tiny_campaign_end_to_end(tiny):
+    work, wall = tiny
+    res = work / RESULTS
+    lib = open_library(res / "closures.nc")  # verifies the content hash
+    assert lib.attrs["library_name"] == "granflow-tiny"
+    assert "6 x 4 box" in lib.attrs["reductions_vs_paper"]
+    kinds = set(lib.attrs["kinds"].split())
+    assert {"hstop", "flow_rule", "friction", "alpha", "density", "stress_ratio"} <= kinds
+    manifest = json.loads((res / "closures.json").read_text())
+    assert manifest["version"] == 1 and manifest["content_hash"] == lib.attrs["content_hash"]
+    assert (res / "library" / "granflow-tiny-v1.nc").is_file()
+    # every run (grid and search) is either in the table or listed as excluded
+    runs = {p.parent.relative_to(res).as_posix() for p in res.rglob("summary.json")}
+    table = pd.read_csv(res / "campaign_table.csv")
+    excluded = pd.read_csv(res / "excluded_runs.csv")
+    assert set(table["run"]) | set(excluded["run"]) == runs
+    assert len(campaign_table(lib)) == len(table) >= 1
+    # the grid of the config (3 chute + 3 segregation runs) plus the search's own points
+    assert len(runs) >= 6
+    state = json.loads(sorted((res / "hstop" / "linear" / "lambda~1").glob("step~*.json"),
+                              key=lambda p: int(p.stem.split("~")[1]))[-1].read_text())
+    assert state["search"]["next"] is None and len(state["search"]["runs"]) == 3
+    for t, h, _ in state["search"]["runs"]:
+        assert f"chute/linear/lambda~1/theta~{t:g}/H~{h:g}" in runs
+    # a run directory has the Paramspace layout and every output of the job contract
+    run = res / "chute" / "linear" / "lambda~1" / "theta~26" / "H~3"
+    for f in ("summary.json", "profiles.nc", "series.nc", "final_state.npz", "params.yaml",
+              "row.json", "simulate.log"):
+        assert (run / f).is_file(), f
+    assert "INFO" in (run / "simulate.log").read_text()  # progress/log lines of the job
+    # one base for every run over (lambda = 1, 6 x 4)
+    assert [p.relative_to(res).as_posix() for p in res.glob("bases/*/*/base.npy")] == \
+        ["bases/lambda~1/box~6x4/base.npy"]
+    # the executed report: every figure, as inline PNG and as files
+    html = (res / "report.html").read_text()
+    for title in ("Flow-state map", "Flow rule", "Depth profiles", "Bulk density",
+                  "Segregation", "Snapshot", "Closure table"):
+        assert title in html, title
+    assert html.count("data:image/png;base64,") >= 6
+    assert "Traceback" not in html
+    figs = sorted(p.name for p in (res / "figures").glob("*.png"))
+    assert figs == ["density_K_alpha.png", "flow_rule.png", "flow_state_map.png",
+                    "profiles.png", "segregation.png", "snapshot.png"]
+    assert wall < 600
+
+
+def test_rerun_of_library_step_reuses_the_version(tiny):
+    work, _ = tiny
+    res = work / RESULTS
+    before = open_library(res / "closures.nc").attrs["content_hash"]
+    _check(snakemake(work, str(RESULTS / "closures.nc"), "--cores", "2",
+                     "--forcerun", "fit", "library"))
+    manifest = json.loads((res / "closures.json").read_text())
+    assert manifest["reused"] is True and manifest["version"] == 1
+    assert library_versions(res / "library", "granflow-tiny") == [1]
+    assert open_library(res / "closures.nc").attrs["content_hash"] == before
+
+
+def test_lint_is_clean():
+    proc = _check(snakemake(REPO, "--lint", configfile=None))
+    assert "Congratulations, your workflow is in a good condition" in proc.stdout + proc.stderr
+
+
+BAD_CONFIGS = {
+    "theta_high": ("campaigns: {chute: {enabled: true, grids: [{theta: [95.0], H: [4.0]}]}}",
+                   "campaigns.chute.grids[0].theta[0] = 95.0", "(0, 90)"),
+    "theta_zero": ("campaigns: {segregation: {enabled: true, theta: 0.0}}",
+                   "campaigns.segregation.theta = 0.0", "(0, 90)"),
+    "H_zero": ("campaigns: {chute: {enabled: true, grids: [{theta: [24.0], H: [0.0]}]}}",
+               "campaigns.chute.grids[0].H[0] = 0.0", "> 0"),
+    "H_negative": ("campaigns: {segregation: {enabled: true, H: -2.0}}",
+                   "campaigns.segregation.H = -2.0", "> 0"),
+    "lambda_negative": ("campaigns: {chute: {enabled: true, lambda: [-1.0]}}",
+                        "campaigns.chute.lambda[0] = -1.0", ">= 0"),
+    "sigma_high": ("campaigns: {segregation: {enabled: true, sigma: [1.2]}}",
+                   "campaigns.segregation.sigma[0] = 1.2", "(0, 1]"),
+    "sigma_zero": ("campaigns: {segregation: {enabled: true, sigma: [0.0]}}",
+                   "campaigns.segregation.sigma[0] = 0.0", "(0, 1]"),
+    "unknown_law": ("campaigns: {chute: {enabled: true, contact_law: [hooke]}}",
+                    "campaigns.chute.contact_law[0] = 'hooke'", "linear, hertz, plastic"),
+    "unknown_key": ("numerics: {t_endd: 100.0}", "unknown key(s) ['t_endd']", "allowed keys"),
+    "unknown_nested_key": ("campaigns: {chute: {enabled: true, hstop_search: {enabled: false, "
+                           "H00: 3}}}", "unknown key(s) ['H00']", "allowed keys"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CONFIGS))
+def test_invalid_config_fails_before_any_job(case, tmp_path):
+    text, key, allowed = BAD_CONFIGS[case]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text + "\n")
+    proc = snakemake(tmp_path, "-n", "--cores", "1", configfile=bad, timeout=120)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0
+    assert "invalid campaign configuration" in out and key in out and allowed in out, out[-3000:]
+    assert not (tmp_path / "results").exists()  # nothing started
+
+
+def _pids_of(run_dir: Path, rel: Path):
+    """PIDs of `granflow simulate` processes working on ``run_dir`` (started by this test; the
+    job's command line names the run directory relative to the working directory ``rel``)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        args = [c.decode(errors="replace") for c in cmd]
+        if "simulate" not in args or rel.as_posix() not in args:
+            continue
+        try:
+            cwd = Path(os.readlink(d / "cwd"))
+        except OSError:
+            continue
+        if (cwd / rel).resolve() == run_dir.resolve():
+            pids.append(int(d.name))
+    return pids
+
+
+def test_killed_job_and_rerun_give_the_same_library(tiny, tmp_path):
+    """SIGKILL one simulation job mid-run; the rerun resumes it and the library is identical."""
+    ref_work, _ = tiny
+    ref = open_library(ref_work / RESULTS / "closures.nc")
+    rel = RESULTS / "chute" / "linear" / "lambda~1" / "theta~26" / "H~3"
+    victim = tmp_path / rel
+    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(tmp_path),
+           "--configfile", str(TINY), "--cores", "2", str(RESULTS / "closures.nc")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    killed = False
+    deadline = time.monotonic() + 300
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if (victim / "checkpoint.npz").exists():
+                pids = _pids_of(victim, rel)
+                if pids:
+                    for pid in pids:
+                        os.kill(pid, signal.SIGKILL)
+                    killed = True
+                    break
+            time.sleep(0.05)
+        out, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert killed, "the victim job finished before it could be killed"
+    assert proc.returncode != 0 and "Error in rule simulate" in out
+    assert (victim / "checkpoint.npz").exists()        # kept for the rerun
+    assert not (victim / "summary.json").exists()
+    _check(snakemake(tmp_path, str(RESULTS / "closures.nc"), "--cores", "2"))
+    assert "resumed from checkpoint" in (victim / "simulate.log").read_text()
+    assert not (victim / "checkpoint.npz").exists()    # removed once the outputs exist
+    lib = open_library(tmp_path / RESULTS / "closures.nc")
+    assert lib.attrs["content_hash"] == ref.attrs["content_hash"]
+    a = campaign_table(lib).set_index("run").sort_index()
+    b = campaign_table(ref).set_index("run").sort_index()
+    pd.testing.assert_frame_equal(a, b)

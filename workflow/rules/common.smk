@@ -1,0 +1,144 @@
+# Helpers shared by the rules: grid expansion, run directories, per-run parameters, the hstop
+# search chain, targets.  Physics-free: this only reads the configuration
+# (granflow.campaign.grid) and the search's state files (granflow.campaign.hstop).
+
+import json
+import os
+import shlex
+import sys
+from pathlib import Path
+
+from granflow.campaign import grid as G
+from granflow.campaign import hstop as HS
+from snakemake.settings.types import DeploymentMethod
+
+# The granflow command line.  Without --use-conda: the `granflow` script of the Python that
+# runs Snakemake (works without an activated venv).  With --use-conda (workflow/envs/
+# granflow.yaml holds the dependencies): the env's python with this checkout's src/ on the path.
+_GF = Path(sys.executable).with_name("granflow")
+if DeploymentMethod.CONDA in workflow.deployment_settings.deployment_method:
+    GRANFLOW = f"env PYTHONPATH={shlex.quote(str(REPO / 'src'))} python -m granflow.cli"
+elif _GF.exists():
+    GRANFLOW = shlex.quote(str(_GF))
+else:
+    GRANFLOW = f"{shlex.quote(sys.executable)} -m granflow.cli"
+CONDA_ENV = str(REPO / "workflow" / "envs" / "granflow.yaml")
+
+NAME = config["name"]
+RESULTS = f"results/{NAME}"
+THREADS = G.threads(config)
+GRID_RUNS = G.expand_runs(config)
+CHUTE = G.campaign_cfg(config, "chute")
+SEARCH = (CHUTE.get("hstop_search") or {}) if G.enabled(config, "chute") else {}
+SEARCH_ON = bool(SEARCH.get("enabled", False))
+SEG = G.campaign_cfg(config, "segregation")
+SEG_WINDOW = float(
+    SEG.get("profile_window")
+    or (SEG.get("numerics") or {}).get("averaging_time")
+    or (config.get("numerics") or {}).get("averaging_time", 100.0)
+)
+LIBRARY = config["library"]
+LIBRARY_DIR = LIBRARY.get("directory") or f"{RESULTS}/library"
+REPORT_ON = bool((config.get("report") or {}).get("enabled", True))
+REPORT_TIMEOUT = int((config.get("report") or {}).get("timeout_s", 600))
+
+
+wildcard_constraints:
+    kind="chute|segregation",
+    law="linear|hertz|plastic",
+    point=G.POINT_REGEX,
+    lam="[0-9][0-9.e+-]*",
+    Lx="[0-9][0-9.e+-]*",
+    Ly="[0-9][0-9.e+-]*",
+    i="[0-9]+",
+
+
+# ----------------------------------------------------------------------------- runs
+def run_dir(point):
+    """Results folder of a run point."""
+    return f"{RESULTS}/{point.path}"
+
+
+def point_of(wildcards):
+    return G.parse_run_path(f"{wildcards.kind}/{wildcards.law}/{wildcards.point}")
+
+
+def run_params_json(wildcards):
+    return json.dumps(G.run_params(config, point_of(wildcards)), sort_keys=True)
+
+
+def base_of(wildcards):
+    return f"{RESULTS}/{G.base_path(config, point_of(wildcards))}"
+
+
+def dir_of(wildcards, output):
+    """The run directory of a rule's first output."""
+    return os.path.dirname(output[0])
+
+
+# ----------------------------------------------------------------------------- hstop search
+def search_points():
+    """(law, lambda) pairs the adaptive hstop search runs over."""
+    if not SEARCH_ON:
+        return []
+    laws = CHUTE.get("contact_law") or ["linear"]
+    lams = SEARCH.get("lambda") or CHUTE.get("lambda") or [1.0]
+    return [(str(law), G.format_value(lam)) for law in laws for lam in lams]
+
+
+def hstop_step_input(wildcards):
+    """Step i needs state i-1 (a checkpoint) and the run at the point that state proposes."""
+    i = int(wildcards.i)
+    if i == 0:
+        return {}
+    prev = checkpoints.hstop_step.get(law=wildcards.law, lam=wildcards.lam, i=str(i - 1)).output[0]
+    point = HS.next_point(HS.read_state(prev))
+    if point is None:
+        raise ValueError(f"hstop search {prev} is finished; there is no step {i}")
+    return {"state": prev, "summary": os.path.join(run_dir(point), "summary.json")}
+
+
+def hstop_step_args(wildcards, input):
+    if int(wildcards.i) == 0:
+        settings = json.dumps(HS.search_settings(SEARCH), sort_keys=True)
+        return f"--settings {shlex.quote(settings)}"
+    rel = os.path.relpath(os.path.dirname(input.summary), RESULTS)
+    return f"--state {input.state} --summary {input.summary} --run {rel}"
+
+
+def hstop_final_state(law, lam):
+    """Follow the checkpoint chain to the finished state (raises until every step has run)."""
+    i = 0
+    while True:
+        path = checkpoints.hstop_step.get(law=law, lam=lam, i=str(i)).output[0]
+        if HS.next_point(HS.read_state(path)) is None:
+            return path
+        i += 1
+
+
+def hstop_search_inputs():
+    """Final state files and row files of every search run."""
+    states, rows = [], []
+    for law, lam in search_points():
+        path = hstop_final_state(law, lam)
+        states.append(path)
+        rows += [os.path.join(run_dir(p), "row.json") for p in HS.search_runs(HS.read_state(path))]
+    return states, rows
+
+
+# ----------------------------------------------------------------------------- collect, targets
+def collect_inputs(wildcards):
+    rows = [os.path.join(run_dir(p), "row.json") for p in GRID_RUNS]
+    states, search_rows = hstop_search_inputs()
+    rows += [r for r in search_rows if r not in rows]
+    return {"rows": rows, "states": states}
+
+
+def final_targets():
+    # the grid rows are listed too, so that grid runs start at once, side by side with the
+    # hstop-search chain (whose checkpoints defer the collect rule's input)
+    out = [os.path.join(run_dir(p), "row.json") for p in GRID_RUNS]
+    out += [f"{RESULTS}/closures.nc", f"{RESULTS}/closures.csv", f"{RESULTS}/closures.json"]
+    if REPORT_ON:
+        out.append(f"{RESULTS}/report.html")
+    return out

@@ -1,0 +1,24 @@
+# The adaptive hstop search of Weinhart et al. (2012) §6 as a chain of checkpoint steps, next
+# to the plain grids.  Step 0 writes the initial walk state; step i reads state i-1, waits for
+# the run at the point it proposed (an ordinary run directory, simulated by rule `simulate` and
+# shared with the grid), records its flow state and writes state i.  The chain ends at the
+# first state without a next point (helpers: hstop_* in common.smk).  Enable it with
+# campaigns.chute.hstop_search.enabled.
+
+
+checkpoint hstop_step:
+    input:
+        unpack(hstop_step_input),
+    output:
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/step~{{i}}.json",
+    log:
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/step~{{i}}.log",
+    params:
+        gf=GRANFLOW,
+        args=hstop_step_args,
+    localrule: True
+    conda:
+        CONDA_ENV
+    shell:
+        "{params.gf} campaign hstop-step --law {wildcards.law} --lam {wildcards.lam}"
+        " {params.args} --out {output} > {log} 2>&1"

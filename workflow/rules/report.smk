@@ -1,0 +1,43 @@
+# The campaign report: notebooks/campaign_report.py (jupytext percent script) executed with
+# nbclient into results/<campaign>/report.html (+ the executed .ipynb and the figures as PNG,
+# which Snakemake's own --report lists next to the library).
+
+
+rule report:
+    input:
+        notebook=str(REPO / "notebooks" / "campaign_report.py"),
+        library=f"{RESULTS}/closures.nc",
+        manifest=f"{RESULTS}/closures.json",
+        fits=f"{RESULTS}/fits.json",
+        table=f"{RESULTS}/campaign_table.nc",
+        segregation=f"{RESULTS}/segregation_fits.json",
+    output:
+        html=report(
+            f"{RESULTS}/report.html",
+            category="Report",
+            caption=str(REPO / "workflow" / "report" / "report.rst"),
+        ),
+        ipynb=f"{RESULTS}/report.ipynb",
+        figures=report(
+            directory(f"{RESULTS}/figures"),
+            patterns=["{figure}.png"],
+            category="Figures",
+            caption=str(REPO / "workflow" / "report" / "figure.rst"),
+        ),
+    log:
+        f"{RESULTS}/logs/report.log",
+    params:
+        gf=GRANFLOW,
+        results=lambda wc, input: os.path.dirname(input.library),
+        campaign=NAME,
+        timeout=REPORT_TIMEOUT,
+    threads: 1
+    resources:
+        runtime=30,
+        mem_mb=4000,
+    conda:
+        CONDA_ENV
+    shell:
+        "{params.gf} campaign report --notebook {input.notebook} --results {params.results}"
+        " --campaign {params.campaign} --out-html {output.html} --out-ipynb {output.ipynb}"
+        " --figures {output.figures} --timeout {params.timeout} > {log} 2>&1"

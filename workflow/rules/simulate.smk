@@ -1,0 +1,37 @@
+# One chute run per run point.  The run directory names its parameters (Paramspace style):
+#   results/<campaign>/chute/<law>/lambda~1/theta~24/H~10/
+#   results/<campaign>/segregation/<law>/lambda~1/theta~25/H~8/sigma~0.5/
+# `granflow simulate` coarse-grains (profiles.nc) and classifies (summary.json) on the fly,
+# stops as soon as the flow state is known, checkpoints every `checkpoint_every_s` and resumes
+# from checkpoint.npz after a kill (the checkpoint is not a declared output, so Snakemake keeps
+# it when it reruns the job).  Progress is logged every 30 s to the run's simulate.log.
+# The job first writes the run's params.yaml from the configuration (`granflow campaign
+# run-params`, which validates it and drops a checkpoint left by *different* parameters);
+# a changed parameter reruns the job through Snakemake's params trigger.
+
+
+rule simulate:
+    input:
+        base=base_of,
+    output:
+        summary=f"{RESULTS}/{{kind}}/{{law}}/{{point}}/summary.json",
+        profiles=f"{RESULTS}/{{kind}}/{{law}}/{{point}}/profiles.nc",
+        series=f"{RESULTS}/{{kind}}/{{law}}/{{point}}/series.nc",
+        state=f"{RESULTS}/{{kind}}/{{law}}/{{point}}/final_state.npz",
+    log:
+        f"{RESULTS}/{{kind}}/{{law}}/{{point}}/simulate.log",
+    params:
+        gf=GRANFLOW,
+        values=run_params_json,
+        out=dir_of,
+    threads: THREADS
+    resources:
+        runtime=120,
+        mem_mb=2000,
+    conda:
+        CONDA_ENV
+    shell:
+        "({params.gf} campaign run-params --json {params.values:q}"
+        " --out {params.out}/params.yaml"
+        " && {params.gf} -v simulate {params.out}/params.yaml --base {input.base}"
+        " --out {params.out} --threads {threads}) > {log} 2>&1"
