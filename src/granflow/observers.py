@@ -10,6 +10,9 @@ checkpoint with the run (``state_dict`` / ``load_state_dict``):
 * :class:`MonitorObserver` feeds the energies to a
   :class:`granflow.steady.SteadyStateMonitor` (§6: E_kin / <E_ela>) and asks the run to stop
   once the flow is arrested, clearly accelerating, or steady with enough averaging time.
+* :class:`SegregationObserver` (bidisperse runs) records the small-particle centre of mass
+  relative to the flow's, feeds a :class:`granflow.steady.segregation.SegregationMonitor`, and
+  holds a steady flow running until the segregated state is steady too (seed 002 §6).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 
 from .coarse import DepthProfileAccumulator
 from .steady.monitor import SteadyStateMonitor
+from .steady.segregation import SegregationMonitor
 
 
 class ProfileObserver:
@@ -126,6 +130,80 @@ class MonitorObserver:
             "explanation": cls.explain() if cls is not None else dec.message,
             "statistics_json": json.dumps(getattr(cls, "statistics", {}), default=_json_float),
         }
+
+
+class SegregationObserver:
+    """Segregation indicator s = z_com(small) - z_com(flow) and the segregated-steady stop rule.
+
+    With ``energy`` (the run's :class:`MonitorObserver`) the energy monitor's "steady" stop is
+    deferred: the run stops as steady only when the segregation monitor is steady as well and
+    ``averaging_time`` has passed since the later of the two onsets.  Arrested and accelerating
+    stops pass through unchanged.
+    """
+
+    name = "segregation"
+
+    def __init__(self, monitor: SegregationMonitor, small_type: int = 0, energy=None):
+        self.monitor = monitor
+        self.small_type = int(small_type)
+        self.energy = energy
+        if energy is not None:  # take over the energy monitor's steady stop
+            energy_stop = energy.should_stop
+
+            def gated(system, _stop=energy_stop):
+                stop, reason = _stop(system)
+                if stop and reason.startswith("steady"):
+                    return False, ""
+                return stop, reason
+            energy.should_stop = gated
+
+    def indicator(self, system) -> float:
+        flow = ~system.fixed
+        small = flow & (system.ptype == self.small_type)
+        if not small.any():
+            return math.nan
+        z = system.pos[:, 2]
+        m = system.mass[flow]
+        return float(z[small].mean() - (m @ z[flow]) / m.sum())
+
+    def sample(self, system):
+        self.monitor.update(system.time, self.indicator(system))
+
+    def steady_start(self, energy_start: float | None) -> float | None:
+        """Start of the window that is steady in energy and segregation (None if not both)."""
+        st = self.monitor.state
+        if st is None or not st.steady or energy_start is None or not math.isfinite(energy_start):
+            return None
+        return max(float(energy_start), float(st.onset))
+
+    def should_stop(self, system):
+        if self.energy is None:
+            return False, ""
+        dec = self.energy.monitor.decision()
+        if not (dec.stop and dec.reason == "steady"):
+            return False, ""
+        st = self.monitor.state
+        start = self.steady_start(dec.steady_start)
+        if start is None or system.time - start < self.monitor.averaging_time:
+            return False, ""
+        return True, (f"steady: energy steady from t={dec.steady_start:.6g}, segregated state "
+                      f"steady from t={st.onset:.6g}; {st.message}")
+
+    def state_dict(self) -> dict:
+        out = {}
+        for key, value in self.monitor.state_dict().items():
+            out[key] = np.asarray(value) if not isinstance(value, str) else np.array(value)
+        return out
+
+    def load_state_dict(self, state: dict):
+        self.monitor = SegregationMonitor.from_state_dict(state)
+
+    def final(self) -> dict:
+        """Final segregation verdict (after flushing the open bin)."""
+        self.monitor.flush()
+        st = self.monitor.check()
+        return dict(st.as_dict(), time=np.asarray(self.monitor.time),
+                    value=np.asarray(self.monitor.value))
 
 
 def _json_float(x):

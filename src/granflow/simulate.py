@@ -258,13 +258,27 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         monitor_obs.name = "monitor_passive"  # still fed (for the final classification)
         monitor_obs.should_stop = lambda system: (False, "")
         run.observers.append(monitor_obs)
+    seg_obs = None
+    if cfg.bidisperse:  # hold steady runs until the segregated state is steady too (seed 002 §6)
+        from .observers import SegregationObserver
+        from .steady.segregation import SegregationMonitor
+        seg_obs = SegregationObserver(
+            SegregationMonitor(averaging_time=p["averaging_time"], check_every=p["check_every"]),
+            small_type=0, energy=monitor_obs if p["early_stop"] else None)
+        run.observers.append(seg_obs)
     run.try_resume()
     run.run()
 
     final = monitor_obs.final()
+    seg = seg_obs.final() if seg_obs is not None else None
     t_now = run.system.time
     if final["flow_state"] in ("steady", "layered") and math.isfinite(final["steady_start"]):
         t_from = final["steady_start"]
+        if seg is not None:
+            both = seg_obs.steady_start(final["steady_start"])
+            # steady in energy and segregation: average from the later onset; a segregated state
+            # still drifting at the end: the last averaging_time (flagged in the summary)
+            t_from = both if both is not None else max(t_from, t_now - p["averaging_time"])
     else:
         t_from = max(0.0, t_now - p["averaging_time"])
     attrs = provenance_attrs(config=p, **{k: v for k, v in p.items() if v is not None})
@@ -273,7 +287,16 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                  flow_state=final["flow_state"], steady_start=final["steady_start"],
                  state_confidence=final["confidence"], classification=final["explanation"],
                  classification_statistics=final["statistics_json"], profile_time_from=t_from)
+    if seg is not None:
+        attrs.update(segregation_state="steady" if seg["steady"] else "drifting",
+                     segregation_onset=seg["onset"], segregation_explanation=seg["message"])
     ds = series_dataset(run.series.arrays(), attrs)
+    if seg is not None:
+        ds = ds.assign_coords(segregation_time=("segregation_time", seg["time"]))
+        ds["segregation_indicator"] = ("segregation_time", seg["value"])
+        ds["segregation_time"].attrs = U.cf(U.TIME, "simulated time (bins of the segregation monitor)")
+        ds["segregation_indicator"].attrs = U.cf(
+            U.LENGTH, "small-particle centre of mass height minus that of all flow particles")
     profiles = profile_obs.dataset(t_from=t_from, attrs=attrs)
     try:
         averages = depth_average_summary(profiles, theta_deg=p["theta"])
@@ -287,6 +310,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         "t_final": t_now, "profile_time_from": t_from, "n_flow": attrs["n_flow"],
         "params": {k: v for k, v in p.items() if v is not None},
         "depth_averages": averages,
+        "segregation": None if seg is None else {
+            k: v for k, v in seg.items() if k not in ("time", "value")},
         "provenance": {k: attrs[k] for k in ("granflow_version", "git_commit", "config_hash")},
     }
     atomic_to_netcdf(ds, out_dir / "series.nc")

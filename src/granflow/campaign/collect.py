@@ -82,20 +82,29 @@ def small_fraction_profiles(ds, t_from: float):
 
 
 def segregation_fit(run_dir, sigma: float, law: str, window: float):
-    """Fit Ps (T-eq. 28) to a bidisperse run's phi(z) over the last ``window`` time units.
+    """Fit Ps (T-eq. 28) to a bidisperse run's phi(z) in its steady segregated window.
 
-    Depth is scaled to [0, 1] over [b, s] of Eq. (42) computed from the same windows' sigma_zz.
+    The window is the run's profile window (``profile_time_from`` of summary.json) when the run
+    found its segregated state steady (energy *and* small-particle centre of mass,
+    :mod:`granflow.steady.segregation`), otherwise the last ``window`` time units.  Depth is
+    scaled to [0, 1] over [b, s] of Eq. (42) computed from the same windows' sigma_zz.  The
+    asymmetric-flux profile (seed 001 Eq. 2.9) is fitted to the same profile for comparison
+    (``extra``: Ps, kappa, rms residual and AIC of both models).
     Returns (FitResult tagged with sigma/contact_law, Ps spread over windows, profile dict).
     """
     import xarray as xr
 
     from ..coarse.derived import flow_height
-    from ..fitting import fit_Ps
+    from ..fitting import compare_segregation_models, fit_Ps
 
     with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
         ds = src.load()
     t_final = _f(ds.attrs.get("t_final"))
-    z, phi, phi_w, used = small_fraction_profiles(ds, t_final - window)
+    steady = str(ds.attrs.get("segregation_state", "")) == "steady"
+    t_from = _f(ds.attrs.get("profile_time_from")) if steady else t_final - window
+    if not math.isfinite(t_from):
+        t_from = t_final - window
+    z, phi, phi_w, used = small_fraction_profiles(ds, t_from)
     szz_w = np.asarray(ds["stress_zz_window"].values, dtype=float)[used]
     counts = np.asarray(ds["window_n_snapshots"].values, dtype=float)[used]
     szz = np.tensordot(counts, szz_w, axes=1) / counts.sum()
@@ -103,6 +112,13 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
     inside = (z >= b) & (z <= s) if np.isfinite(b) and np.isfinite(s) else np.zeros(z.shape, bool)
     zeta = (z[inside] - b) / (s - b) if inside.any() else np.zeros(0)
     fit = fit_Ps(zeta, phi[inside], sigma=sigma, contact_law=law)
+    cmp = compare_segregation_models(zeta, phi[inside])
+    for _, r in cmp.iterrows():
+        tag = "symmetric" if r["model"].startswith("symmetric") else "asymmetric"
+        for col in ("Ps", "kappa", "rms_residual", "aic"):
+            fit.extra[f"{tag}_{col}"] = float(r[col])
+    fit.extra["segregation_state"] = str(ds.attrs.get("segregation_state", "unknown"))
+    fit.extra["profile_time_from"] = float(t_from)
     per = []
     for k in range(len(phi_w)):
         r = fit_Ps(zeta, phi_w[k][inside], sigma=sigma, contact_law=law)
@@ -110,7 +126,8 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
             per.append(r.params["Ps"])
     spread = float(np.std(per, ddof=1)) if len(per) > 1 else math.nan
     profile = {"zeta": zeta.tolist(), "phi": phi[inside].tolist(), "base": b, "surface": s,
-               "t_from": float(t_final - window), "n_windows": int(len(used))}
+               "t_from": float(t_from), "n_windows": int(len(used)),
+               "segregation_state": fit.extra["segregation_state"]}
     return fit, spread, profile
 
 

@@ -152,11 +152,17 @@ class ChuteConfig:
         t = math.radians(self.theta)
         return (math.sin(t), 0.0, -math.cos(t))
 
+    @property
+    def bidisperse(self) -> bool:
+        """Two flow species "small" and "large" (phi0 < 1).  sigma = 1 with phi0 < 1 gives two
+        *identical* species, tagged only: the no-segregation control of a size-ratio sweep."""
+        return self.phi0 < 1.0
+
     def flow_particles(self):
         """Diameters and species index (0 = small, 1 = large) of the flow particles."""
         area = self.Lx * self.Ly
         d_s = self.d_small
-        if self.sigma == 1.0 or self.phi0 >= 1.0:
+        if not self.bidisperse:
             n = int(round(self.H * area / d_s**3))
             return np.full(n, d_s), np.zeros(n, np.int64)
         d_l = d_s / self.sigma
@@ -168,7 +174,7 @@ class ChuteConfig:
 
     def interactions(self) -> InteractionTable:
         base_sp = self.base if self.base is not None else self.flow
-        bidisperse = not (self.sigma == 1.0 or self.phi0 >= 1.0)
+        bidisperse = self.bidisperse
         names = ["small", "large"] if bidisperse else ["flow"]
         diams = [self.d_small, self.d_small / self.sigma] if bidisperse else [self.d_small]
         wall_d = self.lam if self.lam > 0 else 0.0
@@ -197,9 +203,14 @@ def build_chute(cfg: ChuteConfig, base_positions: np.ndarray | None = None) -> P
         raise ValueError(f"base_positions is empty but lam = {cfg.lam} > 0 needs a rough base")
     rng = np.random.default_rng([cfg.seed, 7])
     d_flow, species = cfg.flow_particles()
-    # insert large particles first (they are the hardest to place), then shuffle nothing: order
-    # within the flow stays small-then-large for species-resolved output
-    order = np.argsort(-d_flow, kind="stable")
+    # insert large particles first (they are the hardest to place); the flow's particle order
+    # stays small-then-large for species-resolved output.  Species of equal diameter (the sigma = 1
+    # control of a segregation sweep) are inserted in random order so that their tags start mixed.
+    if cfg.bidisperse:
+        perm = rng.permutation(len(d_flow))
+        order = perm[np.argsort(-d_flow[perm], kind="stable")]
+    else:
+        order = np.argsort(-d_flow, kind="stable")
     base_r = np.full(len(base_positions), 0.5 * cfg.lam)
     z_lo = 0.0 if cfg.lam > 0 else 0.5 * float(d_flow.max())
     pos_sorted = _insert(rng, base_positions, base_r, 0.5 * d_flow[order], cfg.Lx, cfg.Ly,

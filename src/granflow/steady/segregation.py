@@ -1,0 +1,211 @@
+"""Steady *segregated* state of a bidisperse chute (Thornton et al., seed 002 §6).
+
+The segregation closures are read from the final steady state of a bidisperse flow: the
+small-particle profile phi(z) must have stopped evolving, which happens well after the energy
+balance of the flow is steady (small particles keep percolating down for a while).  The
+indicator is the height of the small-particle centre of mass relative to the centre of mass of
+all flowing particles,
+
+    s(t) = z_com(small) - z_com(flow)       (negative: small particles below the mean),
+
+which removes the breathing (dilation) of the whole flow from the signal.  It relaxes from
+~0 (mixed start) to a plateau; the segregated state is *steady* once
+
+* the plateau onset t0 is found by automatic equilibration detection on the binned series
+  (maximum effective sample size, :func:`granflow.steady.timeseries.detect_equilibration`), and
+* the drift over [t0, now] is statistically insignificant (trend test on decorrelated samples,
+  :func:`granflow.steady.timeseries.trend_test`, level ``alpha``) **or** physically negligible:
+  smaller than ``rel_tol`` of the total segregation |s(plateau) - s(0)| plus ``abs_tol``
+  (in small-particle diameters), and
+* at least ``averaging_time`` has elapsed since t0.
+
+:class:`SegregationMonitor` applies this incrementally (binned samples, checks every
+``check_every``), keeps its whole state in plain arrays for checkpoints, and latches its decision
+once steady.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .timeseries import detect_equilibration, trend_test
+
+__all__ = ["SegregationState", "segregation_steadiness", "SegregationMonitor"]
+
+#: trend-test level of a "still drifting" verdict
+SEGREGATION_ALPHA = 0.05
+#: drift over the plateau smaller than this fraction of the total segregation is negligible
+SEGREGATION_REL_TOL = 0.1
+#: ... plus this absolute tolerance in small-particle diameters
+SEGREGATION_ABS_TOL = 0.05
+
+
+@dataclass(frozen=True)
+class SegregationState:
+    """Verdict of :func:`segregation_steadiness`.
+
+    steady: the segregated state is steady with ``averaging_time`` of plateau; onset: start of the
+    plateau (nan without data); plateau: mean of s over the plateau; total: plateau minus the
+    initial value; drift: fitted change of s over the plateau (slope x span); p_value: two-sided
+    trend p-value on the plateau; n_eff: decorrelated samples on the plateau; message: one line.
+    """
+
+    steady: bool
+    onset: float
+    plateau: float
+    total: float
+    drift: float
+    p_value: float
+    n_eff: float
+    message: str
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def segregation_steadiness(t, s, *, averaging_time: float = 100.0, alpha: float = SEGREGATION_ALPHA,
+                           rel_tol: float = SEGREGATION_REL_TOL,
+                           abs_tol: float = SEGREGATION_ABS_TOL) -> SegregationState:
+    """Decide whether the segregation indicator ``s(t)`` has reached a steady plateau.
+
+    ``t`` and ``s`` are the (binned) sample times and indicator values; see the module docstring
+    for the rule.  Pure function of its inputs (used by :class:`SegregationMonitor`).
+    """
+    t = np.asarray(t, dtype=float).ravel()
+    s = np.asarray(s, dtype=float).ravel()
+    if t.shape != s.shape:
+        raise ValueError("t and s must have the same length")
+    ok = np.isfinite(t) & np.isfinite(s)
+    t, s = t[ok], s[ok]
+    nan = math.nan
+    if t.size < 8:
+        return SegregationState(False, nan, nan, nan, nan, nan, 0.0,
+                                f"segregation: {t.size} samples, too few to judge")
+    if float(t[-1] - t[0]) < averaging_time:
+        return SegregationState(False, nan, nan, nan, nan, nan, 0.0,
+                                f"segregation: {t[-1] - t[0]:.4g} of data, less than "
+                                f"averaging_time {averaging_time:g}")
+    # plateau onset: maximum effective sample size, over origins that leave >= averaging_time
+    # of tail (a steady drift would otherwise put the "plateau" in its last few samples)
+    min_tail = int(np.count_nonzero(t >= t[-1] - averaging_time))
+    i0, _, _ = detect_equilibration(s, min_tail=max(min_tail, 2))
+    onset = float(t[i0])
+    tail_t, tail_s = t[i0:], s[i0:]
+    plateau = float(np.mean(tail_s))
+    head = s[: max(1, s.size // 100)]  # the first 1 % of the run: the mixed start
+    total = plateau - float(np.mean(head))
+    tr = trend_test(tail_s, tail_t)
+    drift = float(tr.slope * tr.span) if math.isfinite(tr.slope) else nan
+    insignificant = not tr.significant(alpha)
+    negligible = math.isfinite(drift) and abs(drift) <= rel_tol * abs(total) + abs_tol
+    long_enough = float(t[-1]) - onset >= averaging_time
+    steady = bool(long_enough and (insignificant or negligible))
+    why = ("no significant drift" if insignificant else
+           "drift negligible" if negligible else "still drifting")
+    msg = (f"segregation: s = z_com(small) - z_com(flow) plateau {plateau:.3g} from t={onset:.6g} "
+           f"(total change {total:.3g}), drift {drift:.3g} over {tr.span:.4g} (p={tr.p_value:.3g}, "
+           f"n_eff={tr.n_eff:.3g}): {why}"
+           + ("" if long_enough else f", plateau shorter than {averaging_time:g}"))
+    return SegregationState(steady, onset, plateau, total, drift, float(tr.p_value),
+                            float(tr.n_eff), msg)
+
+
+class SegregationMonitor:
+    """Incremental :func:`segregation_steadiness` with binning, periodic checks and checkpoints.
+
+    ``update(t, s)`` adds a sample; samples are averaged into bins of ``sample_interval``; the rule
+    is evaluated every ``check_every`` time units.  Once steady, the verdict is latched.
+    """
+
+    _CONFIG = ("averaging_time", "check_every", "sample_interval", "alpha", "rel_tol", "abs_tol")
+
+    def __init__(self, averaging_time: float = 100.0, check_every: float = 10.0,
+                 sample_interval: float = 1.0, alpha: float = SEGREGATION_ALPHA,
+                 rel_tol: float = SEGREGATION_REL_TOL, abs_tol: float = SEGREGATION_ABS_TOL):
+        if averaging_time <= 0 or check_every <= 0 or sample_interval <= 0:
+            raise ValueError("averaging_time, check_every and sample_interval must be positive")
+        self.averaging_time = float(averaging_time)
+        self.check_every = float(check_every)
+        self.sample_interval = float(sample_interval)
+        self.alpha = float(alpha)
+        self.rel_tol = float(rel_tol)
+        self.abs_tol = float(abs_tol)
+        self.time: list[float] = []
+        self.value: list[float] = []
+        self._acc = [0.0, 0.0, 0]  # sum t, sum s, count of the open bin
+        self._bin = None
+        self._t_origin = math.nan
+        self._next_check = math.nan
+        self.state: SegregationState | None = None
+
+    def update(self, t: float, s: float) -> None:
+        t = float(t)
+        if math.isnan(self._t_origin):
+            self._t_origin = t
+            self._next_check = t + self.check_every
+        k = int(math.floor((t - self._t_origin) / self.sample_interval))
+        if self._bin is not None and k != self._bin and self._acc[2] > 0:
+            self._close_bin()
+        self._bin = k
+        self._acc[0] += t
+        self._acc[1] += float(s)
+        self._acc[2] += 1
+
+    def _close_bin(self) -> None:
+        st, ss, c = self._acc
+        self._acc = [0.0, 0.0, 0]
+        tb = st / c
+        self.time.append(tb)
+        self.value.append(ss / c)
+        if tb >= self._next_check:
+            while self._next_check <= tb:
+                self._next_check += self.check_every
+            self.check()
+
+    def flush(self) -> None:
+        if self._acc[2] > 0:
+            self._close_bin()
+
+    def check(self) -> SegregationState:
+        """Evaluate the rule on the binned series now (latched once steady)."""
+        if self.state is not None and self.state.steady:
+            return self.state
+        self.state = segregation_steadiness(self.time, self.value, averaging_time=self.averaging_time,
+                                            alpha=self.alpha, rel_tol=self.rel_tol,
+                                            abs_tol=self.abs_tol)
+        return self.state
+
+    @property
+    def steady(self) -> bool:
+        return self.state is not None and self.state.steady
+
+    def state_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in self._CONFIG}
+        d.update(time=np.asarray(self.time, dtype=float), value=np.asarray(self.value, dtype=float),
+                 acc=np.asarray(self._acc[:2] + [float(self._acc[2])], dtype=float),
+                 bin=-(2**62) if self._bin is None else int(self._bin),
+                 t_origin=self._t_origin, next_check=self._next_check,
+                 state_json="" if self.state is None else json.dumps(self.state.as_dict()))
+        return d
+
+    @classmethod
+    def from_state_dict(cls, d) -> "SegregationMonitor":
+        def scalar(v):
+            v = np.asarray(v)
+            return v.item() if v.ndim == 0 else v
+        m = cls(**{k: float(scalar(d[k])) for k in cls._CONFIG})
+        m.time = [float(x) for x in np.asarray(d["time"], dtype=float)]
+        m.value = [float(x) for x in np.asarray(d["value"], dtype=float)]
+        acc = np.asarray(d["acc"], dtype=float)
+        m._acc = [float(acc[0]), float(acc[1]), int(acc[2])]
+        b = int(scalar(d["bin"]))
+        m._bin = None if b == -(2**62) else b
+        m._t_origin = float(scalar(d["t_origin"]))
+        m._next_check = float(scalar(d["next_check"]))
+        sj = str(scalar(d["state_json"]))
+        m.state = SegregationState(**json.loads(sj)) if sj else None
+        return m
