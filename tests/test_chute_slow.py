@@ -112,3 +112,55 @@ def test_bidisperse_chute_segregates_small_particles_downwards(tmp_path):
     low = (zc > h["base"]) & (zc < mid)
     high = (zc > mid) & (zc < h["surface"])
     assert float(phi.values[low].mean()) > float(phi.values[high].mean())
+
+
+# ------------------------------------------------------------------ segregation (issue 8)
+#: the paper's depth (filling height 24 = 5000 small particles in 83.3 x 5) in a 10.4 x 5 box,
+#: 25 degrees, base of fixed small particles, soft particles (t_c = 0.02); the run stops once the
+#: flow and the segregated state (small-particle centre of mass) are steady with 40 of averaging
+SEGREGATION = dict(theta=25.0, H=24.0, lam=1.0, Lx=10.4, Ly=5.0, phi0=0.5, t_c=0.02, t_end=500.0,
+                   averaging_time=40.0, min_accelerating_time=250.0, cg_window=10.0, cg_every=2,
+                   base_layers=5.0)
+
+
+@pytest.fixture(scope="module")
+def segregation_base(tmp_path_factory):
+    path = tmp_path_factory.mktemp("segbase") / "base.npy"
+    prepare_base_file(1.0, SEGREGATION["Lx"], SEGREGATION["Ly"], 1, path, base_layers=5.0,
+                      settle_time=30.0)
+    return path
+
+
+def _segregation_run(sigma, base, out):
+    from granflow.campaign.collect import segregation_fit
+
+    res = simulate(dict(SEGREGATION, sigma=sigma), out, base_file=base)
+    fit, spread, profile = segregation_fit(out, sigma, "linear", window=40.0)
+    return res, fit, spread, profile
+
+
+def test_size_ratio_two_segregates_with_peclet_above_one(segregation_base, tmp_path):
+    """1/sigma = 2: small particles percolate to the base, the T-eq. (28) fit gives Ps > 1 (paper
+    T-eq. 29: Ps(1/2) = 7.35 (1 - e^-5.21) = 7.3 in the 83.3-long box), and the profile is taken
+    from the steady segregated window."""
+    res, fit, spread, profile = _segregation_run(0.5, segregation_base, tmp_path / "s05")
+    assert res["flow_state"] in ("steady", "layered")
+    assert res["segregation"]["steady"], res["segregation"]["message"]
+    assert profile["t_from"] >= res["segregation"]["onset"] - 1e-9
+    assert fit.ok
+    lo, hi = fit.extra["ci95"]
+    assert fit.params["Ps"] > 1.0 and lo > 1.0, (fit.params["Ps"], lo, hi, spread)
+    # the small-particle centre of mass sank below the flow's
+    assert res["segregation"]["plateau"] < -0.5
+
+
+def test_identical_species_do_not_segregate(segregation_base, tmp_path):
+    """1/sigma = 1 (two tagged species of one size): Ps compatible with 0 -- within twice the
+    spread of the per-window fits (10-time-unit windows) and below 1 in magnitude."""
+    res, fit, spread, profile = _segregation_run(1.0, segregation_base, tmp_path / "s1")
+    assert res["flow_state"] in ("steady", "layered")
+    assert fit.ok
+    Ps = fit.params["Ps"]
+    assert abs(Ps) < 1.0, (Ps, spread)
+    assert abs(Ps) <= 2.0 * spread, (Ps, spread)
+    assert abs(res["segregation"]["plateau"]) < 0.3

@@ -91,6 +91,23 @@ def test_square_wave_stop_and_go_is_oscillating(seed):
     assert osc["min_decades"] == pytest.approx(2.0, abs=0.3)
 
 
+def test_rocking_rattler_on_a_stopped_pile_is_arrested():
+    """Observed at theta = 16, t_c = 0.01: after the flow stops (t ~ 40) one grain rocks in its
+    pocket for ever, the ratio swinging between 2e-6 and 5.5e-4 (period 13.5) while the mean
+    velocity is 1e-6.  The paper's 1e-5 rule never fires; the rattler-tolerant rule must, and a
+    stop-and-go flow whose stops are as slow but whose velocity recovers must stay oscillating."""
+    t = np.arange(0.0, 300.0, 1.0)
+    ratio = np.where(t < 40, 10.0 * np.exp(-t / 4.0), 2e-6 + 5.5e-4 * np.sin(np.pi * t / 13.5) ** 2)
+    u = np.where(t < 40, 1.0 * np.exp(-t / 4.0), 1e-6 * np.cos(t))
+    c = classify_flow(t, ratio, u)
+    assert c.state == "arrested", c.explain()
+    assert classify_flow(t, ratio).state != "arrested"  # without u_bar: the paper's rule only
+    # stop-and-go: same kind of stops, but the flow restarts (u back to ~1) every 150 time units
+    level = np.where((T // 150) % 2 == 0, 1e-1, 1e-3)
+    u_sg = np.where((T // 150) % 2 == 0, 1.0, 5e-4)
+    assert classify_flow(T, level * noise(1), u_sg * noise(2)).state == "oscillating"
+
+
 def test_single_dip_is_not_oscillating():
     r = 0.1 * noise(0, amp=0.05)
     r[100:200] *= 1e-2  # one stop and restart, e.g. compaction then spin-up

@@ -41,6 +41,9 @@ __all__ = [
     "FLOWING_STATES",
     "ARREST_RATIO",
     "ARREST_HOLD_TIME",
+    "ARREST_VELOCITY",
+    "ARREST_RATIO_RATTLERS",
+    "ARREST_HOLD_RATTLERS",
     "ALPHA_TREND",
     "MIN_RELATIVE_CHANGE",
     "TREND_WINDOW_FRACTION",
@@ -76,6 +79,19 @@ ARREST_RATIO = 1e-5
 #: observed"), whereas a stop-and-go flow recovers; 5 time units = 1000 collision times is
 #: negligible against the 500-unit arrest horizon yet ignores single-sample dips.
 ARREST_HOLD_TIME = 5.0
+
+#: Rattler-tolerant arrest: a pile in which the depth-mean velocity stays below
+#: ARREST_VELOCITY (sqrt(g d)) and the ratio below ARREST_RATIO_RATTLERS over the last
+#: ARREST_HOLD_RATTLERS time units is arrested too.  Without rolling resistance a single surface
+#: grain can rock in its pocket for ever (pure rolling dissipates nothing): at theta = 16 deg,
+#: t_c = 0.01 one such grain kept E_kin/<E_ela> oscillating between 2e-6 and 5.5e-4 with a period
+#: of 13.5 for t > 40 while the mean velocity was 1e-6, i.e. the pile had stopped.  A flowing layer
+#: near hstop moves at u_bar >~ 0.05, fifty times ARREST_VELOCITY.
+ARREST_VELOCITY = 1e-3
+#: ... with the ratio at most this (two decades above the paper's threshold; flowing 1e-1 ... 10).
+ARREST_RATIO_RATTLERS = 1e-3
+#: ... over this long (four times ARREST_HOLD_TIME: the rule is looser, so it must hold longer).
+ARREST_HOLD_RATTLERS = 20.0
 
 # --- trends ----------------------------------------------------------------------------------
 #: Significance level of every trend test.  The monitor re-tests every check interval, so a
@@ -337,7 +353,9 @@ def classify_flow(
     Decision order (first match wins):
 
     1. arrested: the ratio has been above ``arrest_ratio`` and is below it over the last
-       ``arrest_hold`` time units (paper §6);
+       ``arrest_hold`` time units (paper §6); or (u_bar given) the mean velocity is below
+       :data:`ARREST_VELOCITY` and the ratio below :data:`ARREST_RATIO_RATTLERS` over the last
+       :data:`ARREST_HOLD_RATTLERS` (a few rocking grains keep the ratio above 1e-5);
     2. oscillating: at least ``min_oscillation_cycles`` complete stop-and-go cycles
        (:func:`oscillation_cycles`);
     3. accelerating: over the recent window, the tail after t0 or the last half of the run
@@ -395,6 +413,23 @@ def classify_flow(
         stats_["arrest_decades_below"] = decades
         return FlowClassification("arrested", None, conf, stats_,
                                   f"ratio below {arrest_ratio:g} over the last {arrest_hold:g} time units")
+
+    # 1b. arrested with rattlers: the mean flow has stopped, a few grains still rock
+    if u is not None and t[-1] - t[0] > ARREST_HOLD_RATTLERS:
+        hold_r = t >= t[-1] - ARREST_HOLD_RATTLERS
+        with np.errstate(invalid="ignore"):
+            still = bool(np.all(np.abs(u[hold_r]) < ARREST_VELOCITY)
+                         and np.all(r[hold_r] < ARREST_RATIO_RATTLERS))
+            moved = bool(np.any(r[~hold_r] >= ARREST_RATIO_RATTLERS))
+        if still and moved:
+            umax = float(np.nanmax(np.abs(u[hold_r])))
+            stats_["arrest_u_max"] = umax
+            stats_["arrest_ratio_max"] = float(np.nanmax(r[hold_r]))
+            return FlowClassification(
+                "arrested", None, 1.0, stats_,
+                f"mean velocity |u_bar| <= {umax:.2g} < {ARREST_VELOCITY:g} and ratio < "
+                f"{ARREST_RATIO_RATTLERS:g} over the last {ARREST_HOLD_RATTLERS:g} time units "
+                f"(rattlers keep the ratio above {arrest_ratio:g})")
 
     # 2. oscillating (§8: stop-and-go)
     osc = oscillation_cycles(r)
