@@ -49,6 +49,7 @@ __all__ = [
     "TREND_WINDOW_FRACTION",
     "LONG_WINDOW_FRACTION",
     "MIN_TREND_SAMPLES",
+    "TAIL_VETO_P",
     "EQUIVALENCE_MARGIN",
     "MIN_STEADY_NEFF",
     "NEFF_FULL_CONFIDENCE",
@@ -110,15 +111,24 @@ TREND_WINDOW_FRACTION = 0.1
 #: statement about the run, not about its last 10 %.  A spin-up that ends in a plateau inside this
 #: window is not flagged because its quadratic coefficient is significantly negative.
 LONG_WINDOW_FRACTION = 0.5
+#: "Keeps increasing" is a statement about the whole stationary-looking tail: when the tail after
+#: the onset t0 contains a tested window and itself shows no rise (one-sided p > 0.05), a rise
+#: inside that window is a slow fluctuation, not acceleration.  Seen at theta = 24, H = 10 in a
+#: 10 x 5 box (500 grains): the ratio fluctuates by +-25 % over ~100 time units, and its last half
+#: "rose" by 41 % (p = 0.003) while the 410-unit tail had slope -8 %.
+TAIL_VETO_P = 0.05
 #: Fewest samples a trend window may have (it is widened to this many if needed).
 MIN_TREND_SAMPLES = 20
 
 # --- steady ---------------------------------------------------------------------------------
 #: Equivalence margin (TOST): a steady tail must be *shown* to be flat, not merely not shown to
-#: trend -- the (1 - 2 alpha) confidence interval of the relative change of the ratio over the tail
-#: must lie inside +-20 %.  This is the power guard for short, noisy tails (a ramp hidden in noise
-#: must not pass as steady).  On the paper's log-scale Fig. 3 (1e-6 ... 10) a 20 % change is
-#: invisible, so the rule is stricter than the paper's by-eye "constant".
+#: trend -- the (1 - 2 alpha) confidence interval of the relative change of the ratio, by the
+#: tail's fitted linear trend, over one trend window (the averaging time; the whole tail if
+#: shorter) must lie inside +-20 %.  This is the power guard for short, noisy tails (a ramp hidden
+#: in noise must not pass as steady).  On the paper's log-scale Fig. 3 (1e-6 ... 10) a 20 % change
+#: is invisible, so the rule is stricter than the paper's by-eye "constant".  (Over the whole tail
+#: instead, a 500-grain box whose ratio fluctuates by +-25 % could not be shown flat in 1000 time
+#: units: the change over a longer span has a proportionally wider interval.)
 EQUIVALENCE_MARGIN = 0.2
 #: A steady verdict needs at least this many uncorrelated samples after the onset t0: with fewer
 #: the trend test has too little power to mean anything.
@@ -309,13 +319,16 @@ def _relevant(res: TrendResult, min_rel: float) -> bool:
     return not math.isfinite(rel) or abs(rel) >= min_rel
 
 
-def _equivalent(res: TrendResult, alpha: float, margin: float) -> bool:
-    """TOST: the (1 - 2 alpha) CI of the relative change over the span lies within +-margin."""
+def _equivalent(res: TrendResult, alpha: float, margin: float, horizon: float | None = None) -> bool:
+    """TOST: the (1 - 2 alpha) CI of the relative change over ``horizon`` (default: the span; never
+    more than the span) of the fitted linear trend lies within +-margin."""
     if not (_trend_ok(res) and math.isfinite(res.relative_change) and res.mean != 0):
         return False
-    se_rel = res.stderr * res.span / abs(res.mean)
+    length = res.span if horizon is None else min(float(horizon), res.span)
+    se_rel = res.stderr * length / abs(res.mean)
+    change = res.coefficient * length / abs(res.mean)
     half = float(stats.t.ppf(1.0 - alpha, res.dof)) * se_rel
-    return abs(res.relative_change) + half <= margin
+    return abs(change) + half <= margin
 
 
 def _rising(window_res: TrendResult, curv: TrendResult, alpha: float, min_rel: float) -> bool:
@@ -362,6 +375,8 @@ def classify_flow(
        (:data:`LONG_WINDOW_FRACTION`), the ratio (or u_bar) has a
        significant (one-sided p < alpha) and relevant (>= ``min_relative_change`` of its mean)
        positive slope that is not levelling off (quadratic coefficient not significantly negative);
+       a recent or long window that lies inside the tail is ignored when the tail itself shows
+       no rise (:data:`TAIL_VETO_P`);
     4. steady: t0 = detect_equilibration(ratio) (max of the ratio's and u_bar's), the tail after
        t0 has >= ``min_steady_neff`` uncorrelated samples, and neither the tail nor the recent
        window has a significant-and-relevant trend; onset = time[t0];
@@ -487,9 +502,12 @@ def classify_flow(
 
     # 3. accelerating
     for k in series:
-        for name, res, curv in (("window", window_res[k], window_curv[k]),
-                                ("tail", tail_res[k], tail_curv[k]),
-                                ("long", long_res[k], long_curv[k])):
+        tail_flat = tail_res[k].p_increase > TAIL_VETO_P
+        for name, res, curv, start in (("window", window_res[k], window_curv[k], iw),
+                                       ("tail", tail_res[k], tail_curv[k], t0),
+                                       ("long", long_res[k], long_curv[k], il)):
+            if name != "tail" and t0 <= start and tail_flat:
+                continue  # a rise inside a longer stationary tail is a fluctuation
             if _rising(res, curv, alpha, min_relative_change):
                 stats_["accelerating_test"] = f"{k}_{name}"
                 return FlowClassification(
@@ -507,7 +525,7 @@ def classify_flow(
             pmin = min(pmin, res.p_value)
             if res.p_value < alpha and _relevant(res, min_relative_change):
                 trending.append(f"{k}_{name}")
-    not_flat = [k for k in series if not _equivalent(tail_res[k], alpha, equivalence_margin)]
+    not_flat = [k for k in series if not _equivalent(tail_res[k], alpha, equivalence_margin, w)]
     stats_["trending"] = ",".join(trending)
     stats_["tail_not_shown_flat"] = ",".join(not_flat)
     if not trending and not not_flat and neff >= min_steady_neff:
