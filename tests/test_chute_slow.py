@@ -89,16 +89,16 @@ def test_bidisperse_chute_segregates_small_particles_downwards(tmp_path):
     """Issue 3: 1/sigma = 2, phi0 = 0.5 on a rough base of small particles: particle numbers are
     conserved and the small particles end up lower on average than the large ones."""
     base = tmp_path / "base.npy"
-    prepare_base_file(1.0, 20.0, 5.0, 2, base, base_layers=6.0, settle_time=20.0)
-    res = simulate(dict(theta=25.0, H=10.0, lam=1.0, Lx=20.0, Ly=5.0, sigma=0.5, phi0=0.5,
-                        t_end=150.0, early_stop=False, base_layers=6.0), tmp_path / "run",
-                   base_file=base)
+    prepare_base_file(1.0, 10.0, 5.0, 2, base, base_layers=6.0, settle_time=20.0)
+    res = simulate(dict(theta=25.0, H=10.0, lam=1.0, Lx=10.0, Ly=5.0, sigma=0.5, phi0=0.5,
+                        t_c=0.01, t_end=150.0, early_stop=False, base_layers=6.0),
+                   tmp_path / "run", base_file=base)
     sys_ = res["run"].system
     flow = ~sys_.fixed
     d = 2 * sys_.radius[flow]
     n_small, n_large = int((d == 1.0).sum()), int((d == 2.0).sum())
     # counts: phi0 of the flow volume H Lx Ly pi/6 in small particles, the rest in large ones
-    assert n_small == round(0.5 * 10 * 100 / 1.0) and n_large == round(0.5 * 10 * 100 / 8.0)
+    assert n_small == round(0.5 * 10 * 50 / 1.0) and n_large == round(0.5 * 10 * 50 / 8.0)
     assert n_small + n_large == res["n_flow"]
     z = sys_.pos[flow, 2]
     assert np.all(np.isfinite(z)) and np.all(z > -1.0)  # nobody fell through the base
@@ -115,11 +115,11 @@ def test_bidisperse_chute_segregates_small_particles_downwards(tmp_path):
 
 
 # ------------------------------------------------------------------ segregation (issue 8)
-#: the paper's depth (filling height 24 = 5000 small particles in 83.3 x 5) in a 10.4 x 5 box,
-#: 25 degrees, base of fixed small particles, softer particles (t_c = 0.01), as in
-#: config/segregation-sweep.yaml; the run stops once the flow and the segregated state
+#: half the paper's depth (filling height 12; paper 24 = 5000 small particles in 83.3 x 5) in a
+#: 10.4 x 5 box, 25 degrees, base of fixed small particles, softer particles (t_c = 0.01, as in
+#: config/segregation-sweep.yaml); the run stops once the flow and the segregated state
 #: (small-particle centre of mass) are steady with 40 of averaging
-SEGREGATION = dict(theta=25.0, H=24.0, lam=1.0, Lx=10.4, Ly=5.0, phi0=0.5, t_c=0.01, t_end=400.0,
+SEGREGATION = dict(theta=25.0, H=12.0, lam=1.0, Lx=10.4, Ly=5.0, phi0=0.5, t_c=0.01, t_end=400.0,
                    averaging_time=40.0, min_accelerating_time=200.0, cg_window=10.0, cg_every=2,
                    base_layers=5.0)
 
@@ -142,8 +142,8 @@ def _segregation_run(sigma, base, out):
 
 def test_size_ratio_two_segregates_with_peclet_above_one(segregation_base, tmp_path):
     """1/sigma = 2: small particles percolate to the base, the T-eq. (28) fit gives Ps > 1 (paper
-    T-eq. 29: Ps(1/2) = 7.35 (1 - e^-5.21) = 7.3 in the 83.3-long box), and the profile is taken
-    from the steady segregated window."""
+    T-eq. 29: Ps(1/2) = 7.35 (1 - e^-5.21) = 7.3 at twice this depth; Ps scales with the depth),
+    and the profile is taken from the steady segregated window."""
     res, fit, spread, profile = _segregation_run(0.5, segregation_base, tmp_path / "s05")
     assert res["flow_state"] in ("steady", "layered")
     assert res["segregation"]["steady"], res["segregation"]["message"]

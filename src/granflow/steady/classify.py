@@ -222,7 +222,8 @@ def oscillation_cycles(
 
     With L = log10(ratio) and the flowing level L_hi = quantile(L, ``level_quantile``), a Schmitt
     trigger is "low" once L < L_hi - drop_decades and "high" again once L > L_hi - recover_decades.
-    A cycle is high -> low -> high.  Returns dict(cycles, stops, level, min_decades) where
+    A cycle is high -> low -> high: a series that starts low (from rest) and rises is no cycle.
+    Returns dict(cycles, stops, level, min_decades) where
     min_decades is the deepest drop below the level.
     """
     r = np.asarray(ratio, dtype=float)
@@ -240,7 +241,7 @@ def oscillation_cycles(
     stops = cycles = 0
     for v in logr:
         if v > hi:
-            if state == "low":
+            if state == "low" and stops:  # a stop after flowing, then flowing again
                 cycles += 1
             state = "high"
         elif v < lo:
