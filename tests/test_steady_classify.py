@@ -167,3 +167,15 @@ def test_explain_and_undecided():
     # a decaying (but not yet arrested) flow is neither steady nor accelerating
     c = classify_flow(T, 0.1 * noise(0, amp=0.05) * (2.0 - T / 2000.0))
     assert c.state == "undecided"
+
+
+def test_startup_spike_is_excluded_by_min_onset():
+    """Insertion fall then landing: a short spike (x7) and a dip before stationary, strongly
+    correlated noise (the theta = 24, H = 10 series).  The steady onset must not precede
+    ``min_onset`` (the monitor passes twice the free-fall time of the column)."""
+    t = np.arange(0.0, 400.0, 1.0)
+    r = 300.0 * (1.0 + 0.25 * ar1(t.size, 0.95, 7))
+    r[:15] = [100, 659, 1525, 2227, 2213, 1380, 398, 264, 238, 226, 222, 211, 204, 199, 195]
+    c = classify_flow(t, r, min_onset=15.7)
+    assert c.state == "steady"
+    assert c.onset >= 15.7

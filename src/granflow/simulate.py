@@ -192,7 +192,7 @@ def series_dataset(arrays: dict, attrs: dict):
     return ds
 
 
-def _observers(p: dict, cfg: ChuteConfig, series):
+def _observers(p: dict, cfg: ChuteConfig, series, min_onset: float = 0.0):
     from .coarse import DepthProfileAccumulator
     from .observers import MonitorObserver, ProfileObserver
     from .steady.monitor import SteadyStateMonitor
@@ -208,8 +208,23 @@ def _observers(p: dict, cfg: ChuteConfig, series):
     profile_obs = ProfileObserver(acc, every=int(p["cg_every"]))
     monitor = SteadyStateMonitor(t_cap=p["t_end"], averaging_time=p["averaging_time"],
                                  check_every=p["check_every"],
-                                 min_accelerating_time=p["min_accelerating_time"])
+                                 min_accelerating_time=p["min_accelerating_time"],
+                                 min_onset=min_onset)
     return profile_obs, MonitorObserver(monitor, series)
+
+
+def startup_time(system, theta_deg: float) -> float:
+    """Twice the free-fall time of the inserted column onto the base: sqrt(2 dz / (g cos theta))
+    with dz the height of the highest flow particle above the highest base particle (above z = 0
+    on a flat wall).  The insertion fall, the landing and its rebound lie before it, so the steady
+    onset is searched after it (statistical equilibration detection alone was seen to keep the
+    fall: its short spike lowers the estimated correlation time of the whole series)."""
+    flow = ~system.fixed
+    if not flow.any():
+        return 0.0
+    z_base = float(system.pos[system.fixed, 2].max()) if system.fixed.any() else 0.0
+    dz = max(float(system.pos[flow, 2].max()) - z_base, 0.0)
+    return 2.0 * math.sqrt(2.0 * dz / math.cos(math.radians(theta_deg)))
 
 
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
@@ -250,7 +265,9 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         sample_every = max(1, int(round(p["sample_interval"] / (cfg.flow.t_c / cfg.steps_per_collision))))
     run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
                    checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
-    profile_obs, monitor_obs = _observers(p, cfg, run.series)
+    # a resumed run restores its monitor (and this value) from the checkpoint
+    min_onset = startup_time(system, p["theta"]) if system.time == 0.0 else 0.0
+    profile_obs, monitor_obs = _observers(p, cfg, run.series, min_onset)
     run.observers.append(profile_obs)
     if p["early_stop"]:
         run.observers.append(monitor_obs)
@@ -286,7 +303,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                  n_base=int(run.system.fixed.sum()), dt=run.system.dt, t_final=t_now,
                  flow_state=final["flow_state"], steady_start=final["steady_start"],
                  state_confidence=final["confidence"], classification=final["explanation"],
-                 classification_statistics=final["statistics_json"], profile_time_from=t_from)
+                 classification_statistics=final["statistics_json"], profile_time_from=t_from,
+                 steady_min_onset=monitor_obs.monitor.min_onset)
     if seg is not None:
         attrs.update(segregation_state="steady" if seg["steady"] else "drifting",
                      segregation_onset=seg["onset"], segregation_explanation=seg["message"])

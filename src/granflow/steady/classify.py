@@ -355,6 +355,7 @@ def classify_flow(
     layering_threshold: float = LAYERING_THRESHOLD,
     bulk: tuple[float, float] | None = None,
     n_origins: int = DEFAULT_EQUILIBRATION_ORIGINS,
+    min_onset: float = -math.inf,
 ) -> FlowClassification:
     """Classify a run from its energy-ratio time series (and optionally u_bar and rho(z)).
 
@@ -378,7 +379,8 @@ def classify_flow(
        positive slope that is not levelling off (quadratic coefficient not significantly negative);
        a recent or long window that lies inside the tail is ignored when the tail itself shows
        no rise (:data:`TAIL_VETO_P`);
-    4. steady: t0 = detect_equilibration(ratio) (max of the ratio's and u_bar's), the tail after
+    4. steady: t0 = detect_equilibration(ratio) (max of the ratio's and u_bar's, searched from
+       ``min_onset`` on: the start-up transient of the run, see the monitor), the tail after
        t0 has >= ``min_steady_neff`` uncorrelated samples, and neither the tail nor the recent
        window has a significant-and-relevant trend; onset = time[t0];
     5. otherwise undecided (relaxing, decelerating, or too little data).
@@ -488,10 +490,12 @@ def classify_flow(
                    "long_curvature_p_decrease": long_curv["ratio"].p_decrease})
 
     # equilibration (steady onset) and tail tests
-    t0 = 0
+    i_min = min(int(np.searchsorted(t, min_onset, side="left")), max(t.size - MIN_TREND_SAMPLES, 0))
+    t0 = i_min
     neff = math.inf
     for k, v in series.items():
-        i0, g0, ne = detect_equilibration(v, n_origins=n_origins)
+        i0, g0, ne = detect_equilibration(v[i_min:], n_origins=n_origins)
+        i0 += i_min
         t0 = max(t0, i0)
         stats_[f"{k}_equilibration_index"] = int(i0)
         stats_[f"{k}_equilibration_g"] = g0

@@ -71,7 +71,7 @@ _CONFIG_KEYS = (
     "t_cap", "averaging_time", "check_every", "sample_interval", "ela_window",
     "min_accelerating_time", "accel_confidence", "accel_growth_factor", "stop_on_oscillating",
     "steady_confirmations",
-    "alpha", "arrest_ratio", "arrest_hold", "n_origins",
+    "alpha", "arrest_ratio", "arrest_hold", "n_origins", "min_onset",
 )
 
 
@@ -128,6 +128,7 @@ class SteadyStateMonitor:
         arrest_ratio: float = ARREST_RATIO,
         arrest_hold: float = ARREST_HOLD_TIME,
         n_origins: int = 100,
+        min_onset: float = 0.0,
     ):
         if averaging_time <= 0 or check_every <= 0 or sample_interval <= 0:
             raise ValueError("averaging_time, check_every and sample_interval must be positive")
@@ -146,6 +147,8 @@ class SteadyStateMonitor:
         self.arrest_ratio = float(arrest_ratio)
         self.arrest_hold = float(arrest_hold)
         self.n_origins = int(n_origins)
+        #: earliest steady onset: the start-up transient (insertion fall, landing) is excluded
+        self.min_onset = float(min_onset)
 
         self._cap = 256
         self._n = 0
@@ -270,7 +273,8 @@ class SteadyStateMonitor:
         s = self.series()
         return classify_flow(
             s["time"], s["ratio"], s["u_bar"], trend_window=self.averaging_time, alpha=self.alpha,
-            arrest_ratio=self.arrest_ratio, arrest_hold=self.arrest_hold, n_origins=self.n_origins)
+            arrest_ratio=self.arrest_ratio, arrest_hold=self.arrest_hold, n_origins=self.n_origins,
+            min_onset=self.min_onset)
 
     def _growth(self, ratio: np.ndarray, t: np.ndarray) -> float:
         tn = t[-1]
@@ -295,7 +299,8 @@ class SteadyStateMonitor:
         s = self.series()
         c = classify_flow(
             s["time"], s["ratio"], s["u_bar"], trend_window=self.averaging_time, alpha=self.alpha,
-            arrest_ratio=self.arrest_ratio, arrest_hold=self.arrest_hold, n_origins=self.n_origins)
+            arrest_ratio=self.arrest_ratio, arrest_hold=self.arrest_hold, n_origins=self.n_origins,
+            min_onset=self.min_onset)
         self._classification = c
         onset = c.onset if c.state in ("steady", "layered") else None
         ready = onset is not None and tb - onset >= self.averaging_time
@@ -378,7 +383,7 @@ class SteadyStateMonitor:
         def scalar(v):
             v = np.asarray(v)
             return v.item() if v.ndim == 0 else v
-        cfg = {k: scalar(d[k]) for k in _CONFIG_KEYS}
+        cfg = {k: scalar(d[k]) for k in _CONFIG_KEYS if k in d}  # older states lack min_onset
         m = cls(**cfg)
         time = np.asarray(d["time"], dtype=float)
         n = time.size
