@@ -280,7 +280,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         from .observers import SegregationObserver
         from .steady.segregation import SegregationMonitor
         seg_obs = SegregationObserver(
-            SegregationMonitor(averaging_time=p["averaging_time"], check_every=p["check_every"]),
+            SegregationMonitor(averaging_time=p["averaging_time"], check_every=p["check_every"],
+                               min_onset=monitor_obs.monitor.min_onset),
             small_type=0, energy=monitor_obs if p["early_stop"] else None)
         run.observers.append(seg_obs)
     run.try_resume()

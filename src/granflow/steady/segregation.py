@@ -11,17 +11,19 @@ all flowing particles,
 which removes the breathing (dilation) of the whole flow from the signal.  It relaxes from
 ~0 (mixed start) to a plateau; the segregated state is *steady* once
 
-* the plateau onset t0 is found by automatic equilibration detection on the binned series
-  (maximum effective sample size, :func:`granflow.steady.timeseries.detect_equilibration`), and
-* the drift over [t0, now] is statistically insignificant (trend test on decorrelated samples,
-  :func:`granflow.steady.timeseries.trend_test`, level ``alpha``) **or** physically negligible:
-  smaller than ``rel_tol`` of the total segregation |s(plateau) - s(0)| plus ``abs_tol``
-  (in small-particle diameters), and
-* at least ``averaging_time`` has elapsed since t0.
+* the plateau onset t0 is found by automatic equilibration detection on the binned series after
+  the start-up transient ``min_onset`` (maximum effective sample size,
+  :func:`granflow.steady.timeseries.detect_equilibration`, with at least ``averaging_time`` of
+  tail), and
+* the drift is *shown* to be small (equivalence test, as for the energy ratio): the fitted
+  linear trend over [t0, now] (standard error corrected for serial correlation,
+  :func:`granflow.steady.timeseries.trend_test`) changes s over one ``averaging_time`` by less
+  than ``rel_tol`` of the total segregation |s(plateau) - s(start)| plus ``abs_tol`` (in
+  small-particle diameters), with the (1 - 2 ``alpha``) confidence interval inside that band.
 
 :class:`SegregationMonitor` applies this incrementally (binned samples, checks every
-``check_every``), keeps its whole state in plain arrays for checkpoints, and latches its decision
-once steady.
+``check_every``) and keeps its whole state in plain arrays for checkpoints.  The verdict is
+re-evaluated at every check (a short early plateau must not be latched).
 """
 
 from __future__ import annotations
@@ -32,13 +34,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from scipy import stats
+
 from .timeseries import detect_equilibration, trend_test
 
 __all__ = ["SegregationState", "segregation_steadiness", "SegregationMonitor"]
 
-#: trend-test level of a "still drifting" verdict
+#: level of the equivalence test: the (1 - 2 alpha) = 90 % interval of the drift must lie in the band
 SEGREGATION_ALPHA = 0.05
-#: drift over the plateau smaller than this fraction of the total segregation is negligible
+#: drift per averaging_time smaller than this fraction of the total segregation is negligible
 SEGREGATION_REL_TOL = 0.1
 #: ... plus this absolute tolerance in small-particle diameters
 SEGREGATION_ABS_TOL = 0.05
@@ -69,17 +73,19 @@ class SegregationState:
 
 def segregation_steadiness(t, s, *, averaging_time: float = 100.0, alpha: float = SEGREGATION_ALPHA,
                            rel_tol: float = SEGREGATION_REL_TOL,
-                           abs_tol: float = SEGREGATION_ABS_TOL) -> SegregationState:
+                           abs_tol: float = SEGREGATION_ABS_TOL,
+                           min_onset: float = -math.inf) -> SegregationState:
     """Decide whether the segregation indicator ``s(t)`` has reached a steady plateau.
 
-    ``t`` and ``s`` are the (binned) sample times and indicator values; see the module docstring
-    for the rule.  Pure function of its inputs (used by :class:`SegregationMonitor`).
+    ``t`` and ``s`` are the (binned) sample times and indicator values; samples before
+    ``min_onset`` (the start-up transient) are ignored.  See the module docstring for the rule.
+    Pure function of its inputs (used by :class:`SegregationMonitor`).
     """
     t = np.asarray(t, dtype=float).ravel()
     s = np.asarray(s, dtype=float).ravel()
     if t.shape != s.shape:
         raise ValueError("t and s must have the same length")
-    ok = np.isfinite(t) & np.isfinite(s)
+    ok = np.isfinite(t) & np.isfinite(s) & (t >= min_onset)
     t, s = t[ok], s[ok]
     nan = math.nan
     if t.size < 8:
@@ -96,20 +102,21 @@ def segregation_steadiness(t, s, *, averaging_time: float = 100.0, alpha: float 
     onset = float(t[i0])
     tail_t, tail_s = t[i0:], s[i0:]
     plateau = float(np.mean(tail_s))
-    head = s[: max(1, s.size // 100)]  # the first 1 % of the run: the mixed start
+    head = s[: max(1, min(5, s.size // 20))]  # the first samples after the start-up: the mixed start
     total = plateau - float(np.mean(head))
     tr = trend_test(tail_s, tail_t)
-    drift = float(tr.slope * tr.span) if math.isfinite(tr.slope) else nan
-    insignificant = not tr.significant(alpha)
-    negligible = math.isfinite(drift) and abs(drift) <= rel_tol * abs(total) + abs_tol
-    long_enough = float(t[-1]) - onset >= averaging_time
-    steady = bool(long_enough and (insignificant or negligible))
-    why = ("no significant drift" if insignificant else
-           "drift negligible" if negligible else "still drifting")
+    tol = rel_tol * abs(total) + abs_tol
+    if math.isfinite(tr.slope) and math.isfinite(tr.stderr):
+        drift = float(tr.slope * averaging_time)
+        half = float(stats.t.ppf(1.0 - alpha, max(tr.dof, 1.0))) * float(tr.stderr) * averaging_time
+    else:
+        drift, half = nan, nan
+    steady = bool(math.isfinite(drift) and abs(drift) + half <= tol)
+    why = (f"drift shown within +-{tol:.3g}" if steady else
+           f"drift not shown within +-{tol:.3g} (|drift| + {half:.3g})")
     msg = (f"segregation: s = z_com(small) - z_com(flow) plateau {plateau:.3g} from t={onset:.6g} "
-           f"(total change {total:.3g}), drift {drift:.3g} over {tr.span:.4g} (p={tr.p_value:.3g}, "
-           f"n_eff={tr.n_eff:.3g}): {why}"
-           + ("" if long_enough else f", plateau shorter than {averaging_time:g}"))
+           f"(total change {total:.3g}), drift {drift:.3g} per {averaging_time:g} time units "
+           f"(tail {tr.span:.4g}, p={tr.p_value:.3g}, n_eff={tr.n_eff:.3g}): {why}")
     return SegregationState(steady, onset, plateau, total, drift, float(tr.p_value),
                             float(tr.n_eff), msg)
 
@@ -118,14 +125,16 @@ class SegregationMonitor:
     """Incremental :func:`segregation_steadiness` with binning, periodic checks and checkpoints.
 
     ``update(t, s)`` adds a sample; samples are averaged into bins of ``sample_interval``; the rule
-    is evaluated every ``check_every`` time units.  Once steady, the verdict is latched.
+    is evaluated every ``check_every`` time units.
     """
 
-    _CONFIG = ("averaging_time", "check_every", "sample_interval", "alpha", "rel_tol", "abs_tol")
+    _CONFIG = ("averaging_time", "check_every", "sample_interval", "alpha", "rel_tol", "abs_tol",
+               "min_onset")
 
     def __init__(self, averaging_time: float = 100.0, check_every: float = 10.0,
                  sample_interval: float = 1.0, alpha: float = SEGREGATION_ALPHA,
-                 rel_tol: float = SEGREGATION_REL_TOL, abs_tol: float = SEGREGATION_ABS_TOL):
+                 rel_tol: float = SEGREGATION_REL_TOL, abs_tol: float = SEGREGATION_ABS_TOL,
+                 min_onset: float = 0.0):
         if averaging_time <= 0 or check_every <= 0 or sample_interval <= 0:
             raise ValueError("averaging_time, check_every and sample_interval must be positive")
         self.averaging_time = float(averaging_time)
@@ -134,6 +143,7 @@ class SegregationMonitor:
         self.alpha = float(alpha)
         self.rel_tol = float(rel_tol)
         self.abs_tol = float(abs_tol)
+        self.min_onset = float(min_onset)
         self.time: list[float] = []
         self.value: list[float] = []
         self._acc = [0.0, 0.0, 0]  # sum t, sum s, count of the open bin
@@ -171,12 +181,10 @@ class SegregationMonitor:
             self._close_bin()
 
     def check(self) -> SegregationState:
-        """Evaluate the rule on the binned series now (latched once steady)."""
-        if self.state is not None and self.state.steady:
-            return self.state
+        """Evaluate the rule on the binned series now."""
         self.state = segregation_steadiness(self.time, self.value, averaging_time=self.averaging_time,
                                             alpha=self.alpha, rel_tol=self.rel_tol,
-                                            abs_tol=self.abs_tol)
+                                            abs_tol=self.abs_tol, min_onset=self.min_onset)
         return self.state
 
     @property
@@ -197,7 +205,7 @@ class SegregationMonitor:
         def scalar(v):
             v = np.asarray(v)
             return v.item() if v.ndim == 0 else v
-        m = cls(**{k: float(scalar(d[k])) for k in cls._CONFIG})
+        m = cls(**{k: float(scalar(d[k])) for k in cls._CONFIG if k in d})
         m.time = [float(x) for x in np.asarray(d["time"], dtype=float)]
         m.value = [float(x) for x in np.asarray(d["value"], dtype=float)]
         acc = np.asarray(d["acc"], dtype=float)
