@@ -51,7 +51,7 @@ def test_theta40_accelerates(base_lam1, tmp_path):
 def steady24(base_lam1, tmp_path_factory):
     out = tmp_path_factory.mktemp("r24")
     return simulate(dict(theta=24.0, H=10.0, lam=1.0, t_end=1000.0, base_layers=6.0,
-                         averaging_time=200.0, **BOX), out, base_file=base_lam1)
+                         averaging_time=100.0, **BOX), out, base_file=base_lam1)
 
 
 def test_theta24_flows_steadily(steady24):

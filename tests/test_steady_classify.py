@@ -179,3 +179,16 @@ def test_startup_spike_is_excluded_by_min_onset():
     c = classify_flow(t, r, min_onset=15.7)
     assert c.state == "steady"
     assert c.onset >= 15.7
+
+
+def test_slow_fluctuations_of_a_small_box_are_steady_not_accelerating():
+    """The theta = 24, H = 10, 10 x 5 box series (500 grains): the ratio wanders by +-25 % over
+    ~100 time units and its last 200 units "rise" by 44 % (p = 0.0025), inside a 390-unit tail
+    without trend.  With the paper's averaging time (100) it is steady after the start-up."""
+    blocks = [511, 296, 279, 322, 425, 336, 282, 305, 288, 259, 284, 312, 352, 332, 372, 425]
+    t = np.arange(0.0, 400.0, 1.0)
+    smooth = np.interp(t, 12.5 + 25.0 * np.arange(16), blocks)
+    r = smooth * (1.0 + 0.1 * ar1(t.size, 0.8, 12))
+    c = classify_flow(t, r, trend_window=100.0, min_onset=15.7)
+    assert c.state == "steady", c.explain()
+    assert 15.7 <= c.onset < 100.0
