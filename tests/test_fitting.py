@@ -274,6 +274,9 @@ def test_asymmetric_profile_reduces_and_balances():
     np.testing.assert_allclose(phi_asymmetric(z, 5.0, 0.3, 0.0), phi_teq28(z, 5.0, 0.3),
                                rtol=0, atol=1e-12)
     assert asymmetric_flux_amplitude(0.89) == pytest.approx(1.6, abs=0.01)  # seed 001: A = 1.6
+    # continuous at kappa -> 0 (a fit's optimiser probes kappa ~ 1e-17): A = 1 + kappa/2 + O(kappa^2)
+    for kappa in (0.0, 1e-17, 1e-9, 1e-4):
+        assert asymmetric_flux_amplitude(kappa) == pytest.approx(1.0 + kappa / 2, rel=1e-7)
     Ps, phi0, kappa = 4.0, 0.5, 0.89
     A = asymmetric_flux_amplitude(kappa)
     mass, _ = integrate.quad(phi_asymmetric, 0, 1, args=(Ps, phi0, kappa), epsabs=1e-13)

@@ -115,9 +115,9 @@ def asymmetric_flux_amplitude(kappa: float) -> float:
     kappa = float(kappa)
     if not 0.0 <= kappa < 1.0:
         raise ValueError(f"kappa must be in [0, 1), got {kappa}")
-    if kappa == 0.0:
-        return 1.0
-    c = (2 * (1 + kappa) - math.sqrt(4 * (1 + kappa) ** 2 - 12 * kappa)) / (6 * kappa)
+    # the flux maximum: the smaller root of 3 kappa c^2 - 2 (1 + kappa) c + 1 = 0, in the
+    # cancellation-free form (the textbook form lost c entirely at kappa ~ 1e-17 in a fit)
+    c = 2.0 / (2 * (1 + kappa) + math.sqrt(4 * (1 + kappa) ** 2 - 12 * kappa))
     return 0.25 / (c * (1 - c) * (1 - kappa * c))
 
 
