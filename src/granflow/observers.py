@@ -27,6 +27,11 @@ from .steady.monitor import SteadyStateMonitor
 from .steady.segregation import SegregationMonitor
 
 
+def _as_arrays(state: dict) -> dict:
+    """A monitor's state dict as numpy arrays (strings as 0-d string arrays), for np.savez."""
+    return {k: np.array(v) if isinstance(v, str) else np.asarray(v) for k, v in state.items()}
+
+
 class ProfileObserver:
     """Coarse-grain every ``every``-th sample into depth profiles, by time window."""
 
@@ -105,10 +110,7 @@ class MonitorObserver:
         return False, ""
 
     def state_dict(self) -> dict:
-        out = {}
-        for key, value in self.monitor.state_dict().items():
-            out[key] = np.asarray(value) if not isinstance(value, str) else np.array(value)
-        return out
+        return _as_arrays(self.monitor.state_dict())
 
     def load_state_dict(self, state: dict):
         self.monitor = SteadyStateMonitor.from_state_dict(state)
@@ -190,10 +192,7 @@ class SegregationObserver:
                       f"steady from t={st.onset:.6g}; {st.message}")
 
     def state_dict(self) -> dict:
-        out = {}
-        for key, value in self.monitor.state_dict().items():
-            out[key] = np.asarray(value) if not isinstance(value, str) else np.array(value)
-        return out
+        return _as_arrays(self.monitor.state_dict())
 
     def load_state_dict(self, state: dict):
         self.monitor = SegregationMonitor.from_state_dict(state)

@@ -75,6 +75,12 @@ _CONFIG_KEYS = (
 )
 
 
+def as_scalar(v):
+    """A 0-d array (as ``np.load`` returns saved scalars) as a Python scalar; arrays unchanged."""
+    v = np.asarray(v)
+    return v.item() if v.ndim == 0 else v
+
+
 @dataclass(frozen=True)
 class MonitorDecision:
     """What :meth:`SteadyStateMonitor.decision` returns.
@@ -380,9 +386,7 @@ class SteadyStateMonitor:
     @classmethod
     def from_state_dict(cls, d) -> "SteadyStateMonitor":
         """Rebuild a monitor from :meth:`state_dict` output (also from an ``np.load`` archive)."""
-        def scalar(v):
-            v = np.asarray(v)
-            return v.item() if v.ndim == 0 else v
+        scalar = as_scalar
         cfg = {k: scalar(d[k]) for k in _CONFIG_KEYS if k in d}  # older states lack min_onset
         m = cls(**cfg)
         time = np.asarray(d["time"], dtype=float)

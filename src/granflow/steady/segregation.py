@@ -36,6 +36,7 @@ import numpy as np
 
 from scipy import stats
 
+from .monitor import as_scalar
 from .timeseries import detect_equilibration, trend_test
 
 __all__ = ["SegregationState", "segregation_steadiness", "SegregationMonitor"]
@@ -202,9 +203,7 @@ class SegregationMonitor:
 
     @classmethod
     def from_state_dict(cls, d) -> "SegregationMonitor":
-        def scalar(v):
-            v = np.asarray(v)
-            return v.item() if v.ndim == 0 else v
+        scalar = as_scalar
         m = cls(**{k: float(scalar(d[k])) for k in cls._CONFIG if k in d})
         m.time = [float(x) for x in np.asarray(d["time"], dtype=float)]
         m.value = [float(x) for x in np.asarray(d["value"], dtype=float)]
