@@ -68,6 +68,9 @@ PARAMETERS = {
     "cg_dz": "z spacing of the depth profiles, > 0",
     "cg_window": "time-window length for profile spreads, > 0",
     "cg_every": "coarse-grain every n-th sample (default 1: every t_c/2)",
+    "cg_base_line": "where a flow-base contact's stress goes: contact_then_down (default) | "
+                    "down | through_contact (the paper's literal half-line; see "
+                    "granflow.coarse.profiles.BASE_LINES)",
 }
 
 
@@ -84,7 +87,7 @@ def validate_params(params: dict) -> dict:
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
              averaging_time=100.0, check_every=10.0, min_accelerating_time=None, cg_width=0.25,
-             cg_dz=0.05, cg_window=10.0, cg_every=1)
+             cg_dz=0.05, cg_window=10.0, cg_every=1, cg_base_line="contact_then_down")
     p.update(params)
     for key in ("base_t_c", "base_e", "base_mu_c"):
         p.setdefault(key, None)
@@ -106,6 +109,10 @@ def validate_params(params: dict) -> dict:
     check_range("cg_dz", p["cg_dz"], 0.0, 10.0, lo_open=True)
     check_range("cg_window", p["cg_window"], 0.0, 1e7, lo_open=True)
     check_range("cg_every", p["cg_every"], 1, 1e6)
+    from .coarse.profiles import BASE_LINES
+    if p["cg_base_line"] not in BASE_LINES:
+        raise ValueError(f"cg_base_line = {p['cg_base_line']!r} is unknown: allowed "
+                         f"{sorted(BASE_LINES)}")
     if not isinstance(p["early_stop"], bool):
         raise ValueError(f"early_stop = {p['early_stop']!r} must be true or false")
     cfg = chute_config(p)
@@ -204,7 +211,7 @@ def _observers(p: dict, cfg: ChuteConfig, series, min_onset: float = 0.0):
     z_top = 2.0 * p["H"] + 10.0 * float(d_flow.max(initial=1.0))
     acc = DepthProfileAccumulator(-2.0 * max(p["lam"], 1.0), z_top, p["cg_dz"], width=p["cg_width"],
                                   Lx=p["Lx"], Ly=p["Ly"], n_species=n_species,
-                                  window_length=p["cg_window"])
+                                  window_length=p["cg_window"], base_line=p["cg_base_line"])
     profile_obs = ProfileObserver(acc, every=int(p["cg_every"]))
     monitor = SteadyStateMonitor(t_cap=p["t_end"], averaging_time=p["averaging_time"],
                                  check_every=p["check_every"],
@@ -228,11 +235,13 @@ def startup_time(system, theta_deg: float) -> float:
 
 
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
-             progress=None) -> dict:
+             progress=None, extra_observers=()) -> dict:
     """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
 
-    Returns a summary dict (flow state, stop reason, final time, particle count, wall time, and
-    the ChuteRun under ``run``).
+    ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
+    run, after the built-in ones (e.g. a second :class:`~granflow.observers.ProfileObserver`
+    with another coarse-graining choice).  Returns a summary dict (flow state, stop reason,
+    final time, particle count, wall time, and the ChuteRun under ``run``).
     """
     import json
     import time as _time
@@ -284,6 +293,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                                min_onset=monitor_obs.monitor.min_onset),
             small_type=0, energy=monitor_obs if p["early_stop"] else None)
         run.observers.append(seg_obs)
+    run.observers.extend(extra_observers)
     run.try_resume()
     run.run()
 
