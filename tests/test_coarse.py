@@ -147,13 +147,17 @@ def test_oblique_pairs_all_components(swap):
     assert ds.attrs["cg_n_upward_base_contacts"] == 1
 
 
+@pytest.mark.parametrize("base_line", ["contact_then_down", "through_contact"])
 @pytest.mark.parametrize("swap", [False, True])
-def test_base_contact_then_down_closed_form_and_zero_above(swap):
-    """Default base path (segment r_i -> contact point c, then straight down from c), for a
-    downward and an *upward* branch vector (flow particle sitting below the centre of the base
-    particle it touches): every component equals
-        f_a r_b / r_z (G(z - z_c) - G(z - z_i)) + [b = z] f_a (1 - G(z - z_c)),  r = r_i - c,
-    and every base-stress component is exactly 0 above max(z_i, z_c) + cutoff w."""
+def test_base_paths_closed_form_and_zero_above(swap, base_line):
+    """Base paths for a downward and an *upward* branch vector (flow particle sitting below the
+    centre of the base particle it touches), every component against its closed form:
+    segment r_i -> contact point c, then straight down from c (``contact_then_down``, default):
+        f_a r_b / r_z (G(z - z_c) - G(z - z_i)) + [b = z] f_a (1 - G(z - z_c)),  r = r_i - c;
+    the paper's half-line along u = c - r_i (``through_contact``):
+        f_a u_b / u_z (1 - G(z - z_i)) for u_z < 0 and -f_a u_b / u_z G(z - z_i) for u_z > 0.
+    With the default every base-stress component is exactly 0 above max(z_i, z_c) + cutoff w;
+    the literal half-line leaves the upward contact's plateau all the way up."""
     w, cut = 0.25, 4.0
     p = np.array([[1.0, 1.0, 0.33], [0.4, 1.3, -0.21]])
     base = np.array([[1.2, 0.9, -0.4], [0.1, 1.6, 0.25]])
@@ -169,9 +173,10 @@ def test_base_contact_then_down_closed_form_and_zero_above(swap):
         snap["contact_force"] *= -1
         snap["contact_rij"] *= -1
         # contact point relative to the (stored) base particle: unchanged here (no periodic image)
-    ds = profiles([snap], width=w, cutoff=cut, dz=0.0137)
-    assert ds.attrs["cg_base_line"] == "contact_then_down"
+    ds = profiles([snap], width=w, cutoff=cut, dz=0.0137, base_line=base_line)
+    assert ds.attrs["cg_base_line"] == base_line
     assert "contact point" in ds.attrs["cg_base_line_description"]
+    assert profiles([snap], width=w, cutoff=cut).attrs["cg_base_line"] == "contact_then_down"
     assert ds.attrs["cg_n_upward_base_contacts"] == 1
     z = ds.z.values
     A = 6.0
@@ -180,17 +185,22 @@ def test_base_contact_then_down_closed_form_and_zero_above(swap):
         expected = np.zeros_like(z)
         for pi, ci_, fi in ((p[0], c0, f0), (p[1], c1, f1)):
             r = pi - ci_
+            if base_line == "through_contact":  # the paper's half-line along u = c - r_i
+                u = ci_ - pi
+                expected += fi[a] * u[b] / u[2] * ((1 - G_t(z - pi[2], w, cut)) if u[2] < 0
+                                                   else -G_t(z - pi[2], w, cut))
+                continue
             expected += fi[a] * r[b] / r[2] * (G_t(z - ci_[2], w, cut) - G_t(z - pi[2], w, cut))
             if b == 2:
                 expected += fi[a] * (1 - G_t(z - ci_[2], w, cut))
         np.testing.assert_allclose(ds[f"stress_base_{name}"].values, expected / A, atol=1e-10,
                                    rtol=0)
         top = max(p[0, 2], p[1, 2], c0[2], c1[2]) + cut * w
-        assert np.all(ds[f"stress_base_{name}"].values[z > top + 1e-12] == 0.0), name
-    # the legacy path leaves the upward contact's plateau all the way up
-    legacy = profiles([snap], width=w, cutoff=cut, dz=0.0137, base_line="through_contact")
-    assert abs(legacy.stress_base_xx.values[-1]) > 1e-3
-    assert legacy.attrs["cg_base_line"] == "through_contact"
+        above = ds[f"stress_base_{name}"].values[z > top + 1e-12]
+        if base_line == "contact_then_down":
+            assert np.all(above == 0.0), name
+        elif name in ("xx", "yy", "xy"):  # the upward contact's plateau, all the way up
+            assert np.all(np.abs(above) > 1e-3), name
 
 
 @pytest.mark.parametrize("base_line", ["contact_then_down", "down", "through_contact"])

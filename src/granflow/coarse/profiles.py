@@ -17,8 +17,9 @@ Conventions
   antisymmetric partners (yx, zx, zy; tangential forces make them differ by < 5 %) are not
   computed.  Total = contact (flow-flow pairs, segment r_i -> r_j) + base (flow-base pairs,
   by default the segment from r_i to the contact point and then straight down into the base:
-  any path from r_i to infinity keeps the momentum balance exact, and this one never enters
-  the flow above the contact; see ``base_line`` and physics.md §4) + kinetic (sum m v v g -
+  any path from r_i to infinity keeps the momentum balance exact, and this one never enters the
+  flow above the contact and keeps every contact's contribution bounded; see ``base_line`` and
+  physics.md §4) + kinetic (sum m v v g -
   rho V V per snapshot, i.e. fluctuations about the snapshot's V(z)).
 * Kernel: Gaussian of width w (default 0.25) truncated at ``cutoff`` * w (default 4, where the
   Gaussian has dropped to 3.4e-4 of its peak) and renormalised to unit mass, so mass and
@@ -93,12 +94,12 @@ class DepthProfileAccumulator:
     base_line : where a flow-base contact's stress goes (:data:`BASE_LINES`; every choice
         satisfies the momentum balance exactly):
         ``"contact_then_down"`` (default) the segment from the flow particle's centre to the
-        contact point, then straight down into the base; ``"down"`` straight down from the
-        flow particle's centre; ``"through_contact"`` (alias ``"contact"``) the literal
-        half-line of Weinhart et al. (2012) §3 from r_i through the contact point, which on a
-        rough base points *up* for flow particles sitting below the base particle they touch
-        and then leaves a stress plateau through the whole flow (kept to reproduce old
-        profiles only).
+        contact point, then straight down into the base (bounded: the depth integral of the
+        stress is the half-branch virial f_a r_b);
+        ``"down"`` straight down from the flow particle's centre; ``"through_contact"`` (alias
+        ``"contact"``) the literal half-line for every contact, which on a rough base points
+        *up* for flow particles sitting below the base particle they touch and then leaves a
+        stress plateau through the whole flow (kept to reproduce old profiles only).
 
     Only sums are stored (no trajectories); :meth:`state_dict` / :meth:`from_state_dict`
     checkpoint them.
