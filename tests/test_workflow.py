@@ -61,7 +61,11 @@ def test_tiny_campaign_end_to_end(tiny):
     res = work / RESULTS
     lib = open_library(res / "closures.nc")  # verifies the content hash
     assert lib.attrs["library_name"] == "granflow-tiny"
-    assert "6 x 4 box" in lib.attrs["reductions_vs_paper"]
+    # generated from the configuration and the fits, not written by hand
+    red = lib.attrs["reductions_vs_paper"]
+    assert "chute box 6 x 4 (paper 20 x 10)" in red and "collision time t_c 0.02" in red
+    assert "flow_rule: flow rule from steady runs" in red
+    assert "6 x 4 box" in lib.attrs["library_note"]  # the config's free-text note
     kinds = set(lib.attrs["kinds"].split())
     assert {"hstop", "flow_rule", "friction", "alpha", "density", "stress_ratio"} <= kinds
     manifest = json.loads((res / "closures.json").read_text())
@@ -91,14 +95,14 @@ def test_tiny_campaign_end_to_end(tiny):
         ["bases/lambda~1/box~6x4/base.npy"]
     # the executed report: every figure, as inline PNG and as files
     html = (res / "report.html").read_text()
-    for title in ("Flow-state map", "Flow rule", "Depth profiles", "Bulk density",
-                  "Segregation", "Snapshot", "Closure table"):
+    for title in ("What this library knows", "Flow-state map", "Flow rule", "Depth profiles",
+                  "Bulk density", "Segregation", "Snapshot", "Held-out check", "Closure table"):
         assert title in html, title
     assert html.count("data:image/png;base64,") >= 6
     assert "Traceback" not in html
     figs = sorted(p.name for p in (res / "figures").glob("*.png"))
     assert figs == ["density_K_alpha.png", "flow_rule.png", "flow_state_map.png",
-                    "profiles.png", "segregation.png", "snapshot.png"]
+                    "heldout_z.png", "profiles.png", "segregation.png", "snapshot.png"]
     assert wall < 600
 
 

@@ -28,6 +28,7 @@ FORCE = "m g"
 ENERGY = "m g d"
 SHEAR_RATE = "sqrt(g/d)"
 ANGLE = "degree"
+PER_DEGREE = "degree-1"
 DIMENSIONLESS = "1"
 
 #: Particle material density for d = m = 1: rho_p = m / (pi d^3 / 6).

@@ -133,8 +133,9 @@ def cmd_fit(args):
     for r in fits:
         where = ", ".join(f"{k}={v}" for k, v in sorted(r.coords.items()))
         vals = ", ".join(f"{k}={v:.4g}+-{r.stderr.get(k, float('nan')):.2g}"
-                         for k, v in r.params.items()) if r.ok else r.message
-        print(f"{r.kind:>22} [{where}]: {vals}")
+                         f" [{r.param_status.get(k, '')}]" for k, v in r.params.items()
+                         if r.param_status.get(k) not in ("not_in_form", "not_fitted"))
+        print(f"{r.kind:>22} [{where}] {r.state} ({r.form}): {vals or r.message}")
 
 
 def cmd_library(args):
@@ -153,9 +154,13 @@ def cmd_library(args):
         keep = [c for c in ("run", "theta", "H", "lam", "sigma", "contact_law", "state", "reason")
                 if c in ex]
         attrs["excluded_runs_json"] = ex[keep].to_json(orient="records")
+    from .reductions import reductions_vs_paper
+
+    if args.reductions:
+        attrs["library_note"] = args.reductions
     info = publish_library(args.dir, args.name, fits, table, out=args.out,
                            manifest=args.manifest, config=config,
-                           reductions=args.reductions, attrs=attrs)
+                           reductions=reductions_vs_paper(config, fits), attrs=attrs)
     print(f"closure library {info['name']} v{info['version']} "
           f"({'reused: same content' if info['reused'] else 'new version'}) {info['path']}")
 
@@ -242,7 +247,9 @@ def register(subparsers):
     p.add_argument("--name", required=True)
     p.add_argument("--out", default=None, help="fixed-path copy of the chosen version")
     p.add_argument("--manifest", default=None, help="JSON naming the chosen version")
-    p.add_argument("--reductions", default=None)
+    p.add_argument("--reductions", default=None,
+                   help="free-text note stored as library_note (reductions_vs_paper is "
+                        "generated from the configuration and the fits)")
     p.add_argument("--campaign", default=None)
     p.add_argument("--config-json", default=None)
     p.set_defaults(func=cmd_library)
