@@ -24,7 +24,8 @@ rule library:
         gf=GRANFLOW,
         dir=LIBRARY_DIR,
         name=LIBRARY["name"],
-        reductions=LIBRARY.get("reductions", ""),
+        note=(f"--reductions {shlex.quote(LIBRARY['reductions'])}"
+              if LIBRARY.get("reductions") else ""),
         campaign=NAME,
         config=json.dumps(config, sort_keys=True),
     threads: 1
@@ -36,6 +37,6 @@ rule library:
     shell:
         "{params.gf} campaign library --fits {input.fits} --table {input.table}"
         " --excluded {input.excluded}"
-        " --dir {params.dir} --name {params.name} --reductions {params.reductions:q}"
+        " --dir {params.dir} --name {params.name} {params.note}"
         " --campaign {params.campaign} --config-json {params.config:q}"
         " --out {output.nc} --manifest {output.manifest} > {log} 2>&1"
