@@ -42,6 +42,16 @@ include: "workflow/rules/library.smk"
 include: "workflow/rules/report.smk"
 
 
+onstart:
+    # fit every rule's request to the partition before the first job is submitted: an
+    # impossible request fails here with a message instead of a job pending forever
+    if on_slurm():
+        for _rule in CL.DEFAULT_RESOURCES:
+            CLUSTER.fitted(_rule, True)
+        for _msg in CLUSTER.messages:
+            logger.warning(f"granflow cluster: {_msg}")
+
+
 rule all:
     input:
         final_targets(),

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -112,6 +113,20 @@ def test_rerun_of_library_step_reuses_the_version(tiny):
     assert manifest["reused"] is True and manifest["version"] == 1
     assert library_versions(res / "library", "granflow-tiny") == [1]
     assert open_library(res / "closures.nc").attrs["content_hash"] == before
+
+
+def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
+    """The README's dry run (`snakemake -n --configfile config/test-tiny.yaml`) plans every
+    stage, including `collect`, whose input waits on the unfinished hstop checkpoint chain."""
+    proc = _check(snakemake(tmp_path, "-n", timeout=300))
+    out = proc.stdout + proc.stderr
+    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    # 3 grid + 3 segregation runs, the search's first point is a grid point: 6 simulations
+    assert table.get("simulate") == "6" and table.get("row") == "6", out[-3000:]
+    for rule in ("base", "hstop_step", "collect", "fit", "library", "report"):
+        assert table.get(rule) == "1", (rule, out[-3000:])
+    assert "This was a dry-run" in out
+    assert not (tmp_path / "results").exists()
 
 
 def test_lint_is_clean():

@@ -29,8 +29,7 @@ rule library:
         config=json.dumps(config, sort_keys=True),
     threads: 1
     resources:
-        runtime=10,
-        mem_mb=2000,
+        **cluster_resources("library"),
     conda:
         CONDA_ENV
     shell:
