@@ -9,6 +9,7 @@
 # Rules call the `granflow` command line (granflow simulate / prepare-base / campaign ...);
 # no physics lives in this workflow.  See README.md, "Campaign workflow".
 
+import json
 import os
 from pathlib import Path
 
@@ -29,6 +30,12 @@ from granflow.campaign.config import check_config
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 check_config(config, SCHEMA)
 validate(config, str(SCHEMA))
+
+# ACDD attribution (creator, institution, license, ...) of every output: passed to the jobs in
+# the environment, not as a parameter, so that changing it reruns no simulation
+from granflow.cfconventions import ATTRIBUTION_ENV
+
+os.environ[ATTRIBUTION_ENV] = json.dumps(config.get("metadata") or {}, sort_keys=True)
 
 
 include: "workflow/rules/common.smk"

@@ -57,6 +57,8 @@ def run(workdir: Path, profile: Path | None) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--no-warmup", action="store_true",
+                    help="skip the unmeasured local run that fills numba's on-disk cache")
     args = ap.parse_args()
     if shutil.which("sbatch") is None:
         raise SystemExit("no Slurm here: bash workflow/cluster/local-slurm.sh install && ... start")
@@ -65,6 +67,10 @@ def main():
         tmp = Path(tmp)
         profiles = {"local": None, "slurm, ungrouped": ungrouped_profile(tmp / "ungrouped"),
                     "slurm, grouped": REPO / "profiles" / "slurm"}
+        if not args.no_warmup:
+            res = run(tmp / "warmup", None)
+            print(f"warm-up (local, unmeasured) {res['wall_s']:.1f} s", flush=True)
+            shutil.rmtree(tmp / "warmup", ignore_errors=True)
         for r in range(args.repeat):
             for name, profile in profiles.items():
                 work = tmp / f"{name.replace(', ', '-').replace(' ', '')}-{r}"

@@ -18,6 +18,7 @@ rule collect:
     params:
         gf=GRANFLOW,
         campaign=NAME,
+        config=json.dumps(config, sort_keys=True),
         rows=lambda wc, input: " ".join(shlex.quote(str(f)) for f in input.get("rows", [])),
     threads: 1
     resources:
@@ -27,4 +28,4 @@ rule collect:
     shell:
         "{params.gf} campaign collect {params.rows} --campaign {params.campaign}"
         " --out-nc {output.nc} --out-csv {output.csv} --excluded {output.excluded}"
-        " --segregation {output.segregation} > {log} 2>&1"
+        " --segregation {output.segregation} --config-json {params.config:q} > {log} 2>&1"
