@@ -152,6 +152,13 @@ BAD_CONFIGS = {
     "unknown_law": ("campaigns: {chute: {enabled: true, contact_law: [hooke]}}",
                     "campaigns.chute.contact_law[0] = 'hooke'", "linear, hertz, plastic"),
     "unknown_key": ("numerics: {t_endd: 100.0}", "unknown key(s) ['t_endd']", "allowed keys"),
+    "averaging_longer_than_run": ("numerics: {t_end: 100.0, averaging_time: 150.0}",
+                                  "numerics.averaging_time = 150.0 is longer than the run, "
+                                  "numerics.t_end = 100.0", "at most t_end"),
+    "one_size_ratio": ("campaigns: {segregation: {enabled: true, sigma: [0.5, 1.0]}}",
+                       "campaigns.segregation.sigma = [0.5, 1.0]", "at least 3 distinct size"),
+    "slurm_over_limit": ("cluster: {over_limit: sometimes}", "cluster.over_limit = 'sometimes'",
+                         "['cap', 'refuse']"),
     "unknown_nested_key": ("campaigns: {chute: {enabled: true, hstop_search: {enabled: false, "
                            "H00: 3}}}", "unknown key(s) ['H00']", "allowed keys"),
 }

@@ -5,7 +5,7 @@ then the flow variables as scalars, numpy arrays or xarray DataArrays (DataArray
 by dimension name and the result is a DataArray), then keyword options:
 
 * ``lam`` -- basal roughness lambda, for the lambda-dependent closures (matched to the stored
-  ``lambda`` coordinate within 1e-6);
+  ``lambda`` coordinate within 1e-6); may be omitted when the library holds a single lambda;
 * ``contact_law`` -- may be omitted when the library holds a single contact law;
 * ``extrapolate`` -- by default a ValueError is raised when any input lies outside the range of
   the data the closure was fitted to (stored ``<kind>_<var>_min/_max``); True evaluates anyway.
@@ -63,9 +63,12 @@ def _selection(lib, kind, lam=None, contact_law=None):
         raise ValueError(f"library has no {kind} closure")
     sel = {CONTACT_LAW_DIM: _resolve_contact_law(lib, contact_law)}
     if LAMBDA_DIM in KINDS[kind].dims:
-        if lam is None:
-            raise ValueError(f"{kind} depends on the basal roughness: pass lam=")
         lams = lib[LAMBDA_DIM].values
+        if lam is None:  # like contact_law: may be omitted when the library holds one lambda
+            if lams.size != 1:
+                raise ValueError(f"{kind} depends on the basal roughness and the library holds "
+                                 f"several lambda {lams.tolist()}: pass lam=")
+            lam = float(lams[0])
         hit = np.flatnonzero(np.abs(lams - float(lam)) <= _LAM_TOL)
         if hit.size == 0:
             raise ValueError(f"no closures for lambda = {lam} (library has {lams.tolist()})")
@@ -116,7 +119,7 @@ def _apply(func, *args):
 
 
 # ---------------------------------------------------------------------------- evaluators
-def hstop(lib, theta, lam, *, contact_law=None, extrapolate=False):
+def hstop(lib, theta, lam=None, *, contact_law=None, extrapolate=False):
     """Eq. (45) stopping height hstop(theta; lambda) (d = 1), theta in degrees."""
     p, sel = _params(lib, "hstop", lam, contact_law)
 
@@ -126,7 +129,7 @@ def hstop(lib, theta, lam, *, contact_law=None, extrapolate=False):
     return _apply(f, theta)
 
 
-def froude(lib, h, theta, lam, *, contact_law=None, extrapolate=False):
+def froude(lib, h, theta, lam=None, *, contact_law=None, extrapolate=False):
     """Eq. (47) Froude number of steady flow F = beta h/hstop(theta; 1) - gamma."""
     fr, sel = _params(lib, "flow_rule", lam, contact_law)
     hs, _ = _params(lib, "hstop", 1.0, sel[CONTACT_LAW_DIM])
@@ -138,7 +141,7 @@ def froude(lib, h, theta, lam, *, contact_law=None, extrapolate=False):
     return _apply(f, h, theta)
 
 
-def mu(lib, h, F, lam, *, contact_law=None, extrapolate=False):
+def mu(lib, h, F, lam=None, *, contact_law=None, extrapolate=False):
     """Eq. (50) basal friction mu(h, F; lambda).
 
     Uses the stored ``friction`` closure at ``lam`` when present, otherwise composes delta1,
@@ -160,7 +163,7 @@ def mu(lib, h, F, lam, *, contact_law=None, extrapolate=False):
     return _apply(f, h, F)
 
 
-def alpha(lib, theta, h, lam, *, contact_law=None, extrapolate=False):
+def alpha(lib, theta, h, lam=None, *, contact_law=None, extrapolate=False):
     """Shape factor: constant alpha(lambda) (Eq. 55) or the Eq. (54) basal-layer model."""
     p, sel = _params(lib, "alpha", lam, contact_law)
     constant = p["alpha_constant"]
@@ -225,16 +228,16 @@ class ClosuresAccessor:
     def __init__(self, ds: xr.Dataset):
         self._ds = ds
 
-    def hstop(self, theta, lam, **kw):
+    def hstop(self, theta, lam=None, **kw):
         return hstop(self._ds, theta, lam, **kw)
 
-    def froude(self, h, theta, lam, **kw):
+    def froude(self, h, theta, lam=None, **kw):
         return froude(self._ds, h, theta, lam, **kw)
 
-    def mu(self, h, F, lam, **kw):
+    def mu(self, h, F, lam=None, **kw):
         return mu(self._ds, h, F, lam, **kw)
 
-    def alpha(self, theta, h, lam, **kw):
+    def alpha(self, theta, h, lam=None, **kw):
         return alpha(self._ds, theta, h, lam, **kw)
 
     def K(self, theta, **kw):
