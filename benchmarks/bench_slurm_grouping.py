@@ -28,6 +28,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "config" / "test-tiny.yaml"
+RECORD = REPO / "benchmarks" / "slurm_grouping.json"
 
 
 def ungrouped_profile(dest: Path) -> Path:
@@ -57,6 +58,8 @@ def run(workdir: Path, profile: Path | None) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--no-record", action="store_true",
+                    help="do not write benchmarks/slurm_grouping.json")
     ap.add_argument("--no-warmup", action="store_true",
                     help="skip the unmeasured local run that fills numba's on-disk cache")
     args = ap.parse_args()
@@ -87,6 +90,15 @@ def main():
               f"  jobs {rs[0]['slurm_jobs']}")
     hashes = {r["hash"] for rs in results.values() for r in rs}
     print("library content hashes:", "all equal" if len(hashes) == 1 else "DIFFER", *hashes)
+    if not args.no_record:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO,
+                                capture_output=True, text=True).stdout.strip()
+        record = {name: {"wall_s": round(min(r["wall_s"] for r in rs), 1),
+                         "slurm_jobs": rs[0]["slurm_jobs"]} for name, rs in results.items()}
+        record.update(commit=commit, repeat=args.repeat, load=round(os.getloadavg()[0], 2),
+                      hashes_equal=len(hashes) == 1)
+        RECORD.write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+        print(f"recorded in {RECORD.relative_to(REPO)} (the README quotes the job counts)")
     return 0 if len(hashes) == 1 else 1
 
 

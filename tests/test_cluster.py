@@ -191,3 +191,29 @@ def test_impossible_request_fails_before_any_job_is_submitted(tmp_path):
             f"'{limits.partition}' can give ({limits.max_mem_mb} MB memory") in out, out[-3000:]
     assert "has been submitted with SLURM jobid" not in out
     assert not (tmp_path / "results").exists()
+
+
+@pytest.mark.cluster
+@pytest.mark.skipif(not _slurm_up(), reason="no Slurm node up")
+@pytest.mark.skipif(os.geteuid() != 0, reason="local-slurm.sh needs root")
+def test_local_slurm_script_is_idempotent():
+    """install/start on a running cluster only check it; stop twice, start again: back up."""
+    script = ["bash", str(REPO / "workflow" / "cluster" / "local-slurm.sh")]
+
+    def run(cmd):
+        proc = subprocess.run([*script, cmd], capture_output=True, text=True, timeout=180)
+        return proc.returncode, proc.stdout + proc.stderr
+
+    rc, out = run("install")
+    assert rc == 0 and "already installed" in out, out
+    rc, out = run("start")
+    assert rc == 0 and "slurmctld running" in out and "is idle" in out, out
+    for _ in range(2):
+        rc, out = run("stop")
+        assert rc == 0, out
+    assert "slurmd not running" in out and "slurmctld not running" in out
+    rc, _ = run("status")
+    assert rc == 1
+    rc, out = run("start")
+    assert rc == 0 and "started slurmctld" in out, out
+    assert _slurm_up()

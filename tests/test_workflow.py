@@ -129,6 +129,18 @@ def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+def test_snakemake_report_of_the_tiny_campaign(tiny):
+    """The README's `snakemake --report results/report.zip`, for the finished tiny campaign."""
+    import zipfile
+
+    work, _ = tiny
+    _check(snakemake(work, "--report", "results/report.zip", timeout=600))
+    with zipfile.ZipFile(work / "results" / "report.zip") as z:
+        names = z.namelist()
+    assert any(n.endswith("report.html") for n in names), names[:20]
+    assert any(n.endswith("closures.nc") for n in names), names[:20]
+
+
 def test_lint_is_clean():
     proc = _check(snakemake(REPO, "--lint", configfile=None))
     assert "Congratulations, your workflow is in a good condition" in proc.stdout + proc.stderr

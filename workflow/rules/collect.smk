@@ -18,7 +18,7 @@ rule collect:
     params:
         gf=GRANFLOW,
         campaign=NAME,
-        config=json.dumps(config, sort_keys=True),
+        config=CONFIG_JSON,
         rows=lambda wc, input: " ".join(shlex.quote(str(f)) for f in input.get("rows", [])),
     threads: 1
     resources:

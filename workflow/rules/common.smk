@@ -42,12 +42,18 @@ LIBRARY = config["library"]
 LIBRARY_DIR = LIBRARY.get("directory") or f"{RESULTS}/library"
 REPORT_ON = bool((config.get("report") or {}).get("enabled", True))
 REPORT_TIMEOUT = int((config.get("report") or {}).get("timeout_s", 600))
+# the configuration as collect and library record it (config_hash, config_json): without the
+# cluster resources and the attribution, which change no number (and so rerun nothing; the
+# attribution reaches the jobs through $GRANFLOW_METADATA, see the Snakefile)
+CONFIG_JSON = json.dumps({k: v for k, v in config.items() if k not in ("cluster", "metadata")},
+                         sort_keys=True)
 
 
 # ----------------------------------------------------------------------------- cluster resources
 # Per-rule Slurm requests, from the `cluster` section of the configuration
-# (granflow.campaign.cluster).  With the Slurm executor they are fitted to the partition (capped, or refused with a message
-# naming rule, request and limit) before any job is submitted; locally they are only recorded.
+# (granflow.campaign.cluster).  With the Slurm executor they are fitted to the partition
+# (capped, or refused with a message naming rule, request and limit) before any job is
+# submitted (onstart in the Snakefile); locally they are only recorded.
 CLUSTER = CL.ClusterPlan(config, threads=THREADS)
 
 

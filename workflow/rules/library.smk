@@ -26,7 +26,7 @@ rule library:
         name=LIBRARY["name"],
         reductions=LIBRARY.get("reductions", ""),
         campaign=NAME,
-        config=json.dumps(config, sort_keys=True),
+        config=CONFIG_JSON,
     threads: 1
     resources:
         **cluster_resources("library"),
