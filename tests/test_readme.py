@@ -254,8 +254,14 @@ def test_closure_library_example_runs(tmp_path):
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     h_stop, F, K, n = ast.literal_eval(proc.stdout.strip().splitlines()[-1])
-    # the synthetic campaign's closures: hstop Eq. (45) with delta1 17.7, delta2 32.8, A 3.4
-    assert h_stop == pytest.approx(3.4 * (32.8 - 25.0) / (25.0 - 17.7), rel=0.05)
+    # hstop without lam on this one-lambda library is Eq. (45) with the stored parameters
+    from granflow.closures import open_library
+    from granflow.fitting import hstop_eq45
+
+    lib = open_library(target)
+    p = {k: float(lib[f"hstop_{k}"].squeeze()) for k in ("delta1", "delta2", "A")}
+    assert h_stop == pytest.approx(float(hstop_eq45(25.0, **p)), rel=1e-12)
+    assert 2.0 < h_stop < 8.0  # the synthetic closures: delta1 17.7, delta2 32.8, A 3.4
     assert F > 0 and 0.5 < K < 1.5 and n == len(table)
 
 
