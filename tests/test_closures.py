@@ -13,6 +13,8 @@ import pandas as pd
 import pytest
 import xarray as xr
 
+from granflow import cfconventions
+
 import granflow.closures as gc
 from granflow.closures import (compare_libraries, format_comparison, open_library,
                                write_library)
@@ -92,7 +94,7 @@ def test_write_read_round_trip_is_exact(lib_path):
     bare_lib.attrs, bare_expected.attrs = {}, {}
     xr.testing.assert_identical(bare_lib, bare_expected)
     for key in expected.attrs:
-        if key not in ("created", "content_hash"):
+        if key not in ("created", "content_hash", *cfconventions.CREATION_TIME_ATTRS):
             assert lib.attrs[key] == expected.attrs[key], key
     assert lib.attrs["content_hash"] == gc.content_hash(lib)
     assert lib.attrs["reductions_vs_paper"] == "T = 50 instead of 100; 10 heights"
@@ -260,3 +262,29 @@ def test_real_fits_through_library(tmp_path):
     np.testing.assert_allclose(gc.mu(lib, h, Fs, 1.0), np.tan(np.radians(theta)), atol=1e-10)
     assert lib["friction_error"].item() == fric.error > 0
     assert lib["hstop_delta1_stderr"].attrs["stderr_method"] == "bootstrap"
+
+
+def test_lam_may_be_omitted_only_for_a_one_lambda_library(lib_path, tmp_path):
+    lib = open_library(lib_path)
+    assert lib["lambda"].size > 1
+    with pytest.raises(ValueError, match=r"several lambda \[.*\]: pass lam="):
+        lib.closures.hstop(25.0)
+    one = lib.sel({"lambda": [1.0]})  # the same closures at lambda = 1 only
+    assert one.closures.hstop(25.0) == lib.closures.hstop(25.0, lam=1.0) == pytest.approx(
+        float(hstop_eq45(25.0, **HSTOP1)), rel=1e-14)
+    assert one.closures.alpha(24.0, 20.0) == lib.closures.alpha(24.0, 20.0, lam=1.0)
+
+
+def test_accessor_is_registered_by_import_granflow(lib_path):
+    """`import granflow` alone (a fresh interpreter) gives ds.closures, without warnings."""
+    import subprocess
+    import sys
+
+    code = ("import warnings; warnings.simplefilter('error')\n"
+            "import granflow, xarray as xr\n"
+            f"lib = xr.open_dataset({str(lib_path)!r})\n"
+            "print(float(lib.closures.K(24.0)))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert float(proc.stdout) == pytest.approx(float(gc.K(open_library(lib_path), 24.0)))

@@ -459,7 +459,9 @@ def test_state_dict_round_trip(tmp_path):
 
     with xr.open_dataset(tmp_path / "p.nc") as back:
         np.testing.assert_array_equal(back.stress_zz.values, dc.stress_zz.values)
-        assert back.stress_zz.attrs["units"] == "m g d-2"
+        assert back.stress_zz.attrs["units"] == "1"  # nondimensional (UDUNITS)
+        assert back.stress_zz.attrs["nondimensional_unit"] == \
+            "particle_mass*gravity*particle_diameter**-2"  # m g / d^2
         assert back.attrs["param_theta"] == 24.0
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -118,6 +119,32 @@ def test_rerun_of_library_step_reuses_the_version(tiny):
     assert open_library(res / "closures.nc").attrs["content_hash"] == before
 
 
+def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
+    """The README's dry run (`snakemake -n --configfile config/test-tiny.yaml`) plans every
+    stage, including `collect`, whose input waits on the unfinished hstop checkpoint chain."""
+    proc = _check(snakemake(tmp_path, "-n", timeout=300))
+    out = proc.stdout + proc.stderr
+    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    # 3 grid + 3 segregation runs, the search's first point is a grid point: 6 simulations
+    assert table.get("simulate") == "6" and table.get("row") == "6", out[-3000:]
+    for rule in ("base", "hstop_step", "collect", "fit", "library", "report"):
+        assert table.get(rule) == "1", (rule, out[-3000:])
+    assert "This was a dry-run" in out
+    assert not (tmp_path / "results").exists()
+
+
+def test_snakemake_report_of_the_tiny_campaign(tiny):
+    """The README's `snakemake --report results/report.zip`, for the finished tiny campaign."""
+    import zipfile
+
+    work, _ = tiny
+    _check(snakemake(work, "--report", "results/report.zip", timeout=600))
+    with zipfile.ZipFile(work / "results" / "report.zip") as z:
+        names = z.namelist()
+    assert any(n.endswith("report.html") for n in names), names[:20]
+    assert any(n.endswith("closures.nc") for n in names), names[:20]
+
+
 def test_lint_is_clean():
     proc = _check(snakemake(REPO, "--lint", configfile=None))
     assert "Congratulations, your workflow is in a good condition" in proc.stdout + proc.stderr
@@ -141,6 +168,13 @@ BAD_CONFIGS = {
     "unknown_law": ("campaigns: {chute: {enabled: true, contact_law: [hooke]}}",
                     "campaigns.chute.contact_law[0] = 'hooke'", "linear, hertz, plastic"),
     "unknown_key": ("numerics: {t_endd: 100.0}", "unknown key(s) ['t_endd']", "allowed keys"),
+    "averaging_longer_than_run": ("numerics: {t_end: 100.0, averaging_time: 150.0}",
+                                  "numerics.averaging_time = 150.0 is longer than the run, "
+                                  "numerics.t_end = 100.0", "at most t_end"),
+    "one_size_ratio": ("campaigns: {segregation: {enabled: true, sigma: [0.5, 1.0]}}",
+                       "campaigns.segregation.sigma = [0.5, 1.0]", "at least 3 distinct size"),
+    "slurm_over_limit": ("cluster: {over_limit: sometimes}", "cluster.over_limit = 'sometimes'",
+                         "['cap', 'refuse']"),
     "unknown_nested_key": ("campaigns: {chute: {enabled: true, hstop_search: {enabled: false, "
                            "H00: 3}}}", "unknown key(s) ['H00']", "allowed keys"),
 }

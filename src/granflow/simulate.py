@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import cfconventions
 from . import units as U
 from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_base
 from .engine.run import ChuteRun
@@ -343,6 +344,20 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
             k: v for k, v in seg.items() if k not in ("time", "value")},
         "provenance": {k: attrs[k] for k in ("granflow_version", "git_commit", "config_hash")},
     }
+    where = f"theta = {p['theta']:g} deg, H = {p['H']:g}, lambda = {p['lam']:g}" + (
+        f", sigma = {p['sigma']:g}, phi0 = {p['phi0']:g}" if p.get("phi0", 1.0) < 1 else "")
+    cfconventions.apply(
+        ds, kind="series", config=p, title=f"granflow chute run time series ({where})",
+        summary=("Energy time series of one periodic-chute discrete particle simulation "
+                 f"({where}) and its flow-state classification ({final['flow_state']}; "
+                 "Weinhart et al. 2012 §6)" + ("; small-particle segregation indicator"
+                                               if seg is not None else "") + "."))
+    cfconventions.apply(
+        profiles, kind="profiles", config=p, title=f"granflow chute run depth profiles ({where})",
+        summary=("Coarse-grained depth profiles (density, velocity, stress tensor with contact, "
+                 "kinetic and base-contact parts; Weinhart et al. 2012 §3) of one periodic-chute "
+                 f"discrete particle simulation ({where}), averaged from t = {t_from:g}, with "
+                 "per-time-window values for spreads."))
     atomic_to_netcdf(ds, out_dir / "series.nc")
     atomic_to_netcdf(profiles, out_dir / "profiles.nc")
     run.system.save(out_dir / "final_state.npz")

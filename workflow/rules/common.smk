@@ -8,6 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from granflow.campaign import cluster as CL
 from granflow.campaign import grid as G
 from granflow.campaign import hstop as HS
 from snakemake.settings.types import DeploymentMethod
@@ -41,6 +42,44 @@ LIBRARY = config["library"]
 LIBRARY_DIR = LIBRARY.get("directory") or f"{RESULTS}/library"
 REPORT_ON = bool((config.get("report") or {}).get("enabled", True))
 REPORT_TIMEOUT = int((config.get("report") or {}).get("timeout_s", 600))
+# the configuration as collect and library record it (config_hash, config_json): without the
+# cluster resources and the attribution, which change no number (and so rerun nothing; the
+# attribution reaches the jobs through $GRANFLOW_METADATA, see the Snakefile)
+CONFIG_JSON = json.dumps({k: v for k, v in config.items() if k not in ("cluster", "metadata")},
+                         sort_keys=True)
+
+
+# ----------------------------------------------------------------------------- cluster resources
+# Per-rule Slurm requests, from the `cluster` section of the configuration
+# (granflow.campaign.cluster).  With the Slurm executor they are fitted to the partition
+# (capped, or refused with a message naming rule, request and limit) before any job is
+# submitted (onstart in the Snakefile); locally they are only recorded.
+CLUSTER = CL.ClusterPlan(config, threads=THREADS)
+
+
+def on_slurm():
+    """True in the Snakemake process that submits jobs with the Slurm executor."""
+    plugin = workflow.executor_plugin
+    return plugin is not None and getattr(plugin, "name", "") == "slurm"
+
+
+def cluster_resources(rule):
+    """Resources of ``rule``: runtime (min), mem_mb, cpus_per_task, slurm_partition/account."""
+
+    def value(key):
+        return lambda wildcards, attempt: CLUSTER.fitted(rule, on_slurm())[key]
+
+    res = {key: value(key) for key in CL.RESOURCE_KEYS}
+    if CLUSTER.partition:
+        res["slurm_partition"] = CLUSTER.partition
+    if CLUSTER.account:
+        res["slurm_account"] = CLUSTER.account
+    return res
+
+
+def cluster_threads(rule):
+    """Threads of ``rule``: its CPU request, capped to the partition under Slurm."""
+    return lambda wildcards: CLUSTER.fitted(rule, on_slurm())["cpus_per_task"]
 
 
 wildcard_constraints:

@@ -27,11 +27,10 @@ rule library:
         note=(f"--reductions {shlex.quote(LIBRARY['reductions'])}"
               if LIBRARY.get("reductions") else ""),
         campaign=NAME,
-        config=json.dumps(config, sort_keys=True),
+        config=CONFIG_JSON,
     threads: 1
     resources:
-        runtime=10,
-        mem_mb=2000,
+        **cluster_resources("library"),
     conda:
         CONDA_ENV
     shell:

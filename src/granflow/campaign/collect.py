@@ -213,21 +213,44 @@ def _sort_key(r):
     return (row["kind"], row["contact_law"], row["lam"], row["sigma"], row["theta"], row["H"])
 
 
-def table_dataset(table: pd.DataFrame, attrs=None):
-    """The campaign table as an xarray Dataset on dim ``row`` with CF attributes."""
+#: netCDF variable names of columns whose names differ only by case from another column
+#: (CF 2.3: names must not be distinguished by case alone); ``campaign_column`` keeps the column
+NETCDF_NAMES = {"H": "H_fill"}
+
+
+def table_dataset(table: pd.DataFrame, attrs=None, config=None):
+    """The campaign table as an xarray Dataset on dim ``row`` with CF/ACDD attributes and
+    provenance (git commit, created, units system, config hash of ``config``)."""
     import xarray as xr
+
+    from .. import cfconventions
+    from ..provenance import provenance_attrs
 
     data = {}
     for col in table.columns:
         a = dict(COLUMN_ATTRS.get(col) or EXTRA_ATTRS.get(col) or {"long_name": col})
+        a["campaign_column"] = str(col)
+        name = NETCDF_NAMES.get(col, col)
         if (col in STRING_COLUMNS or not pd.api.types.is_numeric_dtype(table[col])
                 or pd.api.types.is_bool_dtype(table[col])):
-            data[col] = ("row", np.array([str(v) for v in table[col]], dtype=object), a)
+            data[name] = ("row", np.array([str(v) for v in table[col]], dtype=object), a)
         else:
-            data[col] = ("row", table[col].to_numpy(dtype=float), a)
-    ds = xr.Dataset(data, coords={"row": np.arange(len(table))})
-    ds["row"].attrs = {"long_name": "campaign table row"}
-    ds.attrs.update(attrs or {})
+            data[name] = ("row", table[col].to_numpy(dtype=float), a)
+    ds = xr.Dataset(data, coords={"row": np.arange(len(table), dtype=np.int32)})
+    ds["row"].attrs = {"long_name": "campaign table row", "units": "1"}
+    glob = provenance_attrs(config if config is not None else {})
+    glob.update(attrs or {})
+    ds.attrs.update(glob)
+    campaign = glob.get("campaign", "")
+    cfconventions.apply(
+        ds, kind="campaign_table", config=config,
+        title=glob.get("title") or f"granflow campaign table {campaign}".strip(),
+        summary=(f"One row per chute run of the granflow campaign {campaign}: inclination, "
+                 "filling height, basal roughness, size ratio, contact law, flow state, depth "
+                 "averages (flow height, velocity, Froude number, shape factor alpha, stress "
+                 "ratio K, densities) with time-window spreads and, for bidisperse runs, the "
+                 "segregation Peclet number Ps (Weinhart et al. 2012; Thornton et al.)."),
+        identifier=f"granflow-campaign-table-{campaign}-{glob.get('config_hash', '')}".rstrip("-"))
     return ds
 
 
@@ -240,6 +263,8 @@ def read_table(path) -> pd.DataFrame:
         import xarray as xr
 
         with xr.open_dataset(path) as ds:
+            ds = ds.rename({n: v.attrs["campaign_column"] for n, v in ds.data_vars.items()
+                            if v.attrs.get("campaign_column", n) != n})
             df = ds.to_dataframe().reset_index(drop=True)
     for col in df.columns:
         if col in STRING_COLUMNS or col in _STRING_EXTRAS:
@@ -248,7 +273,7 @@ def read_table(path) -> pd.DataFrame:
 
 
 def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation=None,
-                  attrs=None) -> pd.DataFrame:
+                  attrs=None, config=None) -> pd.DataFrame:
     """Concatenate row files into the campaign table; write netCDF, CSV, excluded runs and the
     per-run segregation fits (JSON list, input of the library's ``segregation`` kind)."""
     results = sorted(read_rows(row_files), key=_sort_key)
@@ -278,7 +303,7 @@ def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation
     table = table[[c for c in cols if c in table.columns]]
     Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_csv, table.to_csv(index=False, float_format="%.17g").encode())
-    atomic_to_netcdf(table_dataset(table, attrs), out_nc)
+    atomic_to_netcdf(table_dataset(table, attrs, config), out_nc)
     if out_excluded is not None:
         ex_cols = ["run", "reason", "theta", "H", "lam", "sigma", "contact_law", "state",
                    *[c for c in cols if c not in ("run", "theta", "H", "lam", "sigma",

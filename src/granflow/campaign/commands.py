@@ -113,8 +113,9 @@ def cmd_collect(args):
         rows += [line.strip() for line in Path(args.rows_from).read_text().splitlines()
                  if line.strip()]
     attrs = {"title": f"granflow campaign table {args.campaign}", "campaign": args.campaign}
+    config = json.loads(args.config_json) if args.config_json else None
     table = collect_table(rows, args.out_nc, args.out_csv, args.excluded, args.segregation,
-                          attrs=attrs)
+                          attrs=attrs, config=config)
     print(f"campaign table: {len(table)} runs -> {args.out_nc}, {args.out_csv}")
 
 
@@ -226,6 +227,8 @@ def register(subparsers):
     p.add_argument("--out-csv", required=True)
     p.add_argument("--excluded", default=None)
     p.add_argument("--segregation", default=None)
+    p.add_argument("--config-json", default=None,
+                   help="the campaign configuration (JSON): config hash, attribution")
     p.set_defaults(func=cmd_collect)
 
     p = sub.add_parser("fit", help="all closure fits of a campaign table")

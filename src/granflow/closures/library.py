@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from .. import cfconventions
 from .. import units as U
 from ..fitting.result import FitResult
 from ..fitting.table import COLUMN_ATTRS, STRING_COLUMNS, validate_campaign_table
@@ -292,9 +293,13 @@ def _campaign_variables(table: pd.DataFrame):
     table = table.reset_index(drop=True)
     out = {}
     for col in table.columns:
-        name = f"{CAMPAIGN_PREFIX}{col}"
+        # CF 2.3: no two names that differ only by case (campaign_h, campaign_H)
+        name = f"{CAMPAIGN_PREFIX}{'H_fill' if col == 'H' else col}"
         series = table[col]
-        attrs = dict(COLUMN_ATTRS.get(col, {"long_name": f"campaign column {col}"}))
+        from ..campaign.collect import EXTRA_ATTRS  # units of the non-schema columns
+
+        attrs = dict(COLUMN_ATTRS.get(col) or EXTRA_ATTRS.get(col)
+                     or {"long_name": f"campaign column {col}"})
         attrs["campaign_column"] = str(col)
         if col in STRING_COLUMNS or not pd.api.types.is_numeric_dtype(series) \
                 or pd.api.types.is_bool_dtype(series):
@@ -355,7 +360,7 @@ def build_library_dataset(fits, campaign_table=None, *, name="closures", version
     if clash:
         raise ValueError(f"attrs may not set reserved global attributes {clash}")
     glob = {
-        "Conventions": "CF-1.8",
+        "Conventions": cfconventions.CONVENTIONS,
         "title": f"granflow closure library {name} v{version}",
         "granflow_schema": SCHEMA_NAME,
         "schema_version": SCHEMA_VERSION,
@@ -376,6 +381,13 @@ def build_library_dataset(fits, campaign_table=None, *, name="closures", version
         glob[key] = value
     ds.attrs = glob
     ds.attrs["content_hash"] = content_hash(ds)
+    cfconventions.apply(  # CF/ACDD attributes (not hashed: attributes only)
+        ds, kind="closure_library", config=config,
+        summary=(f"Closure relations for shallow granular flows ({', '.join(kinds)}) fitted "
+                 "with uncertainties to a campaign of periodic-chute discrete particle "
+                 "simulations (Weinhart et al. 2012 Eq. 45-55; Thornton et al. T-eq. 28-29), "
+                 "with the campaign table they were fitted to."),
+        title=glob["title"], identifier=f"{name}-v{int(version)}")
     return ds
 
 
