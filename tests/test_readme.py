@@ -231,38 +231,38 @@ def test_cluster_extra_names_the_installed_plugin():
 
 
 def test_closure_library_example_runs(tmp_path):
-    """The README's "Using a closure library" block, on a library of synthetic fits at the path
-    it names (a fresh interpreter: the accessor must come with `import granflow`)."""
-    from test_campaign import _synthetic_rows
+    """The README's "Using a closure library" block, on a library fitted to a synthetic
+    campaign at the path it names (a fresh interpreter: the accessor must come with
+    `import granflow`): K with its ensemble spread, the flow rule without lam, mu refused
+    with its reason when the friction closure is not identified."""
+    import numpy as np
 
-    from granflow.campaign.collect import collect_table, read_table, segregation_fits
-    from granflow.campaign.fits import run_fits
-    from granflow.closures import write_library
+    from test_identify import _campaign
 
+    from granflow.closures import open_library, write_library
+    from granflow.fitting import fit_campaign
+
+    table = _campaign(np.random.default_rng(2012))
+    fits = fit_campaign(table, n_bootstrap=40)
     d = tmp_path / "build"
-    d.mkdir()
-    collect_table(_synthetic_rows(d), d / "t.nc", d / "t.csv", d / "ex.csv", d / "seg.json")
-    table = read_table(d / "t.nc")
-    path = write_library(d, "default", run_fits(table, segregation_fits(d / "seg.json"),
-                                                n_bootstrap=5), table)
+    path = write_library(d, "default", fits, table)
     target = tmp_path / "results" / "default" / "closures.nc"
     target.parent.mkdir(parents=True)
     target.write_bytes(path.read_bytes())
     code = [b for h, b in readme_blocks("python") if h == "Using a closure library"][0]
-    check = code + "\nprint(repr((float(h_stop), float(F), float(K), len(table))))\n"
+    check = code + "\nprint(repr((float(K['value']), float(K['std']), float(F), len(table))))\n"
     proc = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    h_stop, F, K, n = ast.literal_eval(proc.stdout.strip().splitlines()[-1])
-    # hstop without lam on this one-lambda library is Eq. (45) with the stored parameters
-    from granflow.closures import open_library
-    from granflow.fitting import hstop_eq45
-
+    K, K_std, F, n = ast.literal_eval(proc.stdout.strip().splitlines()[-1])
     lib = open_library(target)
-    p = {k: float(lib[f"hstop_{k}"].squeeze()) for k in ("delta1", "delta2", "A")}
-    assert h_stop == pytest.approx(float(hstop_eq45(25.0, **p)), rel=1e-12)
-    assert 2.0 < h_stop < 8.0  # the synthetic closures: delta1 17.7, delta2 32.8, A 3.4
-    assert F > 0 and 0.5 < K < 1.5 and n == len(table)
+    by = {f.kind: f for f in fits}
+    k = by["stress_ratio"]
+    ens = k.ensemble_array()
+    assert K == pytest.approx(1 + (25.0 - k.params["d1"]) / k.params["d0"], rel=1e-12)
+    assert K_std == pytest.approx(np.std(1 + (25.0 - ens[:, 1]) / ens[:, 0], ddof=1), rel=1e-9)
+    assert F > 0 and n == len(table) == len(lib["run"])
+    assert "status" in proc.stdout and "identified" in proc.stdout
 
 
 # ----------------------------------------------------------------------------- claims

@@ -54,7 +54,7 @@ RHO_PARTICLE = 6.0 / math.pi
 #: pint names of the paper's scales d, m, g
 SCALE_NAMES = {"d": "particle_diameter", "m": "particle_mass", "g": "gravity"}
 #: units written as they are (UDUNITS units)
-CF_UNITS_AS_IS = {ANGLE, DIMENSIONLESS}
+CF_UNITS_AS_IS = {ANGLE, PER_DEGREE, DIMENSIONLESS}
 
 _TOKEN = re.compile(r"sqrt\(|[dmg](?:-?\d+)?|[()*/ ]")
 

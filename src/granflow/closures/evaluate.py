@@ -106,7 +106,7 @@ def _selection(lib, kind, lam=None, contact_law=None):
         if lam is None:
             if lams.size != 1:
                 raise ValueError(f"{kind} depends on the basal roughness and the library holds "
-                                 f"lambda = {lams.tolist()}: pass lam=")
+                                 f"several lambda {lams.tolist()}: pass lam=")
             lam = float(lams[0])
         hit = np.flatnonzero(np.abs(lams - float(lam)) <= _LAM_TOL)
         if hit.size == 0:
