@@ -180,17 +180,19 @@ def series_dataset(arrays: dict, attrs: dict):
     t = arrays["time"]
     ratio = np.divide(arrays["e_kin"], arrays["e_ela"], out=np.full_like(t, np.inf),
                       where=arrays["e_ela"] > 0)
+    # the coordinate is ``t``, not ``time``: CF tools take a variable named time for a calendar
+    # time axis ("<unit> since <epoch>"), which a nondimensional simulated time is not
     ds = xr.Dataset(
         {
-            "e_kin": ("time", arrays["e_kin"]),
-            "e_ela": ("time", arrays["e_ela"]),
-            "e_grav": ("time", arrays["e_grav"]),
-            "energy_ratio": ("time", ratio),
-            "u_mean": ("time", arrays["u_mean"]),
+            "e_kin": ("t", arrays["e_kin"]),
+            "e_ela": ("t", arrays["e_ela"]),
+            "e_grav": ("t", arrays["e_grav"]),
+            "energy_ratio": ("t", ratio),
+            "u_mean": ("t", arrays["u_mean"]),
         },
-        coords={"time": t},
+        coords={"t": t},
     )
-    ds["time"].attrs = U.cf(U.TIME, "simulated time")
+    ds["t"].attrs = U.cf(U.TIME, "simulated time t (not a calendar time)")
     ds["e_kin"].attrs = U.cf(U.ENERGY, "kinetic energy (translational + rotational) of the flow")
     ds["e_ela"].attrs = U.cf(U.ENERGY, "elastic energy stored in contacts")
     ds["e_grav"].attrs = U.cf(U.ENERGY, "slope-normal gravitational energy sum m g cos(theta) z")
