@@ -64,7 +64,8 @@ from granflow.campaign.collect import read_excluded
 excluded = read_excluded(R / "excluded_runs.csv")
 STATE_STYLE = {"arrested": ("s", "tab:blue"), "steady": ("o", "tab:green"),
                "accelerating": ("^", "tab:red"), "layered": ("D", "tab:purple"),
-               "oscillating": ("v", "tab:orange"), "undecided": ("x", "0.3")}
+               "oscillating": ("v", "tab:orange"), "undecided": ("x", "0.3"),
+               "flowing": (">", "tab:olive")}
 OK_STATES = ("ok", "reduced")
 
 
@@ -127,7 +128,8 @@ def fmt(r, p):
             f"[{r.param_status.get(p, '')}]")
 
 
-chute = table[table["kind"] == "chute"] if "kind" in table else table[table["sigma"] == 1]
+chute = (table[table["kind"].isin(["chute", "bracket"])] if "kind" in table
+         else table[table["sigma"] == 1])
 seg = table[table["kind"] == "segregation"] if "kind" in table else table[table["sigma"] < 1]
 laws = sorted(set(table["contact_law"]))
 lams = sorted(set(chute["lam"].astype(float)))

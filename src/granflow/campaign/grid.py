@@ -4,6 +4,8 @@ A run point is fully described by its directory (Paramspace style), relative to 
 results folder ``results/<name>/``::
 
     chute/<law>/lambda~<lam>/theta~<theta>/H~<H>                  (closure runs, sigma = 1)
+    bracket/<law>/lambda~<lam>/theta~<theta>/H~<H>                (hstop bisection runs: stop
+                                                                   once decisively flowing)
     segregation/<law>/lambda~<lam>/theta~<theta>/H~<H>/sigma~<s>   (bidisperse runs)
 
 so that a rule can rebuild the run's parameters from its output path alone (the grid runs and
@@ -21,7 +23,7 @@ import math
 import re
 from dataclasses import dataclass
 
-KINDS = ("chute", "segregation")
+KINDS = ("chute", "segregation", "bracket")
 
 #: configuration ``species`` keys -> run parameter names (granflow.simulate.PARAMETERS)
 SPECIES_KEYS = ("t_c", "e", "mu_c", "kt_over_kn", "gt_over_gn", "v_ref", "base_t_c", "base_e",
@@ -33,7 +35,7 @@ NUMERICS_KEYS = ("t_end", "averaging_time", "check_every", "min_accelerating_tim
 
 _NUM = r"[0-9][0-9.e+-]*"
 _RUN_RE = re.compile(
-    rf"(?P<kind>chute|segregation)/(?P<law>[A-Za-z_]+)/lambda~(?P<lam>{_NUM})/"
+    rf"(?P<kind>chute|segregation|bracket)/(?P<law>[A-Za-z_]+)/lambda~(?P<lam>{_NUM})/"
     rf"theta~(?P<theta>{_NUM})/H~(?P<H>{_NUM})(?:/sigma~(?P<sigma>{_NUM}))?")
 #: regular expression of the ``point`` part of a run directory (for Snakemake wildcard constraints)
 POINT_REGEX = rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?"
@@ -149,8 +151,13 @@ def expand_runs(config: dict) -> list[RunPoint]:
     return chute_points(config) + segregation_points(config)
 
 
+def _config_kind(kind: str) -> str:
+    """The campaign block a run kind takes its settings from (brackets belong to "chute")."""
+    return "chute" if kind == "bracket" else kind
+
+
 def box(config: dict, kind: str) -> tuple[float, float]:
-    c = campaign_cfg(config, kind)
+    c = campaign_cfg(config, _config_kind(kind))
     return float(c.get("Lx", 20.0)), float(c.get("Ly", 10.0))
 
 
@@ -177,11 +184,12 @@ def run_params(config: dict, p: RunPoint) -> dict:
     """Complete ``granflow simulate`` parameters of run ``p`` (validated by the job itself).
 
     Layering: species, then ``numerics``, then the campaign's own ``numerics`` overrides, then
-    the box, base thickness and the grid values of the point.
+    the box, base thickness and the grid values of the point; a ``bracket`` run (hstop
+    bisection) is a chute run that stops as soon as it is decisively flowing.
     """
     species = config.get("species") or {}
     numerics = dict(config.get("numerics") or {})
-    c = campaign_cfg(config, p.kind)
+    c = campaign_cfg(config, _config_kind(p.kind))
     numerics.update(c.get("numerics") or {})
     params = {k: species[k] for k in SPECIES_KEYS if species.get(k) is not None}
     params.update({k: numerics[k] for k in NUMERICS_KEYS if numerics.get(k) is not None})
@@ -190,6 +198,8 @@ def run_params(config: dict, p: RunPoint) -> dict:
                   base_layers=base_settings(config)["layers"])
     if p.kind == "segregation":
         params.update(sigma=p.sigma, phi0=float(c.get("phi0", 0.5)))
+    if p.kind == "bracket":  # arrested or decisively flowing is all a bracket needs
+        params.update(stop_when_flowing=True, early_stop=True)
     return {k: (float(v) if isinstance(v, int) and not isinstance(v, bool) and k != "seed"
                 and k != "cg_every" else v) for k, v in params.items()}
 
