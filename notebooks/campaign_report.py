@@ -566,6 +566,31 @@ else:
     savefig(fig, "heldout_z")
 
 # %% [markdown]
+# ## Replicates: scatter between seeds against the runs' own uncertainty
+# Runs of one point with different insertion seeds (`replicates`) scatter by more than one
+# run's time windows show, most of all near hstop and in small boxes.  tau is the between-seed
+# standard deviation beyond the runs' decorrelated standard errors (pooled over the replicate
+# groups); the fits weight each run by sqrt(stderr^2 + tau^2) and split every parameter's
+# variance into the two parts (closure table: `between_seed_fraction`).  In the plots above,
+# replicates are the points that share an inclination and height.
+
+# %%
+from granflow.fitting.campaign import between_seed_scatter
+
+rep_rows = []
+for col in ("F", "rho_c", "K", "alpha", "h", "Ps"):
+    sub = table[(table["state"] == "steady")]
+    tau, n_groups, within = between_seed_scatter(sub, col)
+    rep_rows.append({"quantity": col, "replicate groups": n_groups,
+                     "between-seed std tau": tau,
+                     "within-run stderr (pooled)": math.sqrt(within) if n_groups else math.nan,
+                     "ratio": tau / math.sqrt(within) if n_groups and within > 0 else math.nan})
+display(pd.DataFrame(rep_rows) if any(r["replicate groups"] for r in rep_rows)
+        else Markdown("No replicates in this campaign (`replicates: 1`): the stated "
+                      "uncertainties are within-run only and do not include the scatter "
+                      "between seeds."))
+
+# %% [markdown]
 # ## Closure table
 # Every fitted parameter of the library with its standard error (bootstrap for hstop and the
 # closures that depend on it, weighted least-squares covariance otherwise), its status, the
@@ -595,4 +620,4 @@ ct["paper"] = ct.apply(paper_value, axis=1)
 with pd.option_context("display.max_rows", 200, "display.max_colwidth", 60):
     display(ct[["kind", "contact_law", "lambda", "parameter", "value", "stderr",
                 "parameter_status", "status", "form", "paper", "fit_error", "n_points",
-                "heldout_max_abs_z"]])
+                "heldout_max_abs_z", "between_seed_fraction"]])
