@@ -72,6 +72,11 @@ def test_chain_state_machine_proposes_bracket_runs(tmp_path):
 
     params = run_params({"campaigns": {"chute": {"Lx": 10.0, "Ly": 5.0}}}, runs[0])
     assert params["stop_when_flowing"] is True and params["H"] == 4.0
+    # replicate chain k: the same height, bracket runs with insertion seed + k
+    rep = HS.init_bisection("linear", 1.0, 4.0, cfg, replicate=2)
+    p = HS.bisection_next_point(rep)
+    assert p.path.endswith("/H~4/seed~2") and p.replicate == 2
+    assert run_params({"numerics": {"seed": 5}, "campaigns": {"chute": {}}}, p)["seed"] == 7
 
 
 def _feed(mon, t, ratio):

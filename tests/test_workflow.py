@@ -84,7 +84,8 @@ def test_tiny_campaign_end_to_end(tiny):
                               key=lambda p: int(p.stem.split("~")[1]))[-1].read_text())
     assert state["search"]["next"] is None and len(state["search"]["runs"]) == 3
     # the bisection chain at H = 2: two bracket runs, in the table, stopped as soon as decided
-    steps = sorted((res / "hstop" / "linear" / "lambda~1" / "bisect" / "H~2").glob("step~*.json"),
+    steps = sorted((res / "hstop" / "linear" / "lambda~1" / "bisect" / "H~2" / "rep~0")
+                   .glob("step~*.json"),
                    key=lambda p: int(p.stem.split("~")[1]))
     last = json.loads(steps[-1].read_text())
     assert last["bisection"]["next"] is None and len(last["bisection"]["runs"]) == 2

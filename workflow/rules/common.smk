@@ -87,6 +87,7 @@ def cluster_threads(rule):
 wildcard_constraints:
     kind="chute|segregation|bracket",
     H="[0-9][0-9.e+-]*",
+    k="[0-9]+",
     law="linear|hertz|plastic",
     point=G.POINT_REGEX,
     lam="[0-9][0-9.e+-]*",
@@ -170,13 +171,14 @@ def hstop_search_inputs():
 
 # ----------------------------------------------------------------------------- hstop bisection
 def bisect_chains():
-    """(law, lambda, H) of every hstop bisection chain."""
+    """(law, lambda, H, replicate) of every hstop bisection chain."""
     if not BISECT_ON:
         return []
     laws = CHUTE.get("contact_law") or ["linear"]
     lams = BISECT.get("lambda") or CHUTE.get("lambda") or [1.0]
-    return [(str(law), G.format_value(lam), G.format_value(H))
-            for law in laws for lam in lams for H in BISECT.get("H") or []]
+    reps = int(BISECT.get("replicates", 1))
+    return [(str(law), G.format_value(lam), G.format_value(H), str(k))
+            for law in laws for lam in lams for H in BISECT.get("H") or [] for k in range(reps)]
 
 
 def bisect_step_input(wildcards):
@@ -185,7 +187,8 @@ def bisect_step_input(wildcards):
     if i == 0:
         return {}
     prev = checkpoints.hstop_bisect_step.get(law=wildcards.law, lam=wildcards.lam,
-                                             H=wildcards.H, i=str(i - 1)).output[0]
+                                             H=wildcards.H, k=wildcards.k,
+                                             i=str(i - 1)).output[0]
     point = HS.bisection_next_point(HS.read_state(prev))
     if point is None:
         raise ValueError(f"hstop bisection {prev} is finished; there is no step {i}")
@@ -194,7 +197,8 @@ def bisect_step_input(wildcards):
 
 def bisect_step_args(wildcards, input):
     if int(wildcards.i) == 0:
-        settings = {k: v for k, v in BISECT.items() if k not in ("enabled", "lambda", "H")}
+        settings = {k: v for k, v in BISECT.items()
+                    if k not in ("enabled", "lambda", "H", "replicates")}
         return f"--settings {shlex.quote(json.dumps(settings, sort_keys=True))}"
     rel = os.path.relpath(os.path.dirname(input.summary), RESULTS)
     return f"--state {input.state} --summary {input.summary} --run {rel}"
@@ -203,10 +207,11 @@ def bisect_step_args(wildcards, input):
 def bisect_inputs():
     """Final state files and row files of every bracket run of every chain."""
     states, rows = [], []
-    for law, lam, H in bisect_chains():
+    for law, lam, H, k in bisect_chains():
         i = 0
         while True:
-            path = checkpoints.hstop_bisect_step.get(law=law, lam=lam, H=H, i=str(i)).output[0]
+            path = checkpoints.hstop_bisect_step.get(law=law, lam=lam, H=H, k=k,
+                                                     i=str(i)).output[0]
             if HS.bisection_next_point(HS.read_state(path)) is None:
                 break
             i += 1

@@ -25,7 +25,8 @@ checkpoint hstop_step:
 
 
 # Concurrent hstop bisection chains (campaigns.chute.hstop_bisection): one chain per (law,
-# lambda, filling height H), each a sequence of checkpoint steps like the search above.  Step 0
+# lambda, filling height H, replicate k), each a sequence of checkpoint steps like the search
+# above (replicate k: bracket runs with insertion seed + k, directories .../seed~k).  Step 0
 # writes the initial state (first angle: the prior curve's theta_stop(H)); step i records the
 # flow state of the bracket run state i-1 proposed (bracket/<law>/lambda~L/theta~T/H~H, a chute
 # run that stops as soon as it is decisively flowing) and proposes the next angle, until the
@@ -36,9 +37,9 @@ checkpoint hstop_bisect_step:
     input:
         unpack(bisect_step_input),
     output:
-        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/step~{{i}}.json",
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/rep~{{k}}/step~{{i}}.json",
     log:
-        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/step~{{i}}.log",
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/rep~{{k}}/step~{{i}}.log",
     params:
         gf=GRANFLOW,
         args=bisect_step_args,
@@ -47,4 +48,4 @@ checkpoint hstop_bisect_step:
         CONDA_ENV
     shell:
         "{params.gf} campaign hstop-bisect --law {wildcards.law} --lam {wildcards.lam}"
-        " --H {wildcards.H} {params.args} --out {output} > {log} 2>&1"
+        " --H {wildcards.H} --replicate {wildcards.k} {params.args} --out {output} > {log} 2>&1"

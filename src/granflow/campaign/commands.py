@@ -110,7 +110,8 @@ def cmd_bisect_step(args):
     from . import hstop as hs
 
     if args.state is None:
-        state = hs.init_bisection(args.law, args.lam, args.H, json.loads(args.settings or "{}"))
+        state = hs.init_bisection(args.law, args.lam, args.H, json.loads(args.settings or "{}"),
+                                  replicate=args.replicate)
     else:
         if args.summary is None:
             raise ValueError("hstop-bisect --state needs --summary of the proposed run")
@@ -118,7 +119,8 @@ def cmd_bisect_step(args):
     hs.write_state(state, args.out)
     nxt = hs.bisection_next_point(state)
     last = state.get("last")
-    print(f"hstop bisection {args.law} lambda={args.lam} H={args.H} step {state['step']}: "
+    print(f"hstop bisection {args.law} lambda={args.lam} H={args.H} replicate "
+          f"{state.get('replicate', 0)} step {state['step']}: "
           + (f"{last['run']} {last['flow_state']}; " if last else "")
           + (f"next {nxt.path}" if nxt else f"finished ({state['bisection']['note']})"))
 
@@ -241,6 +243,7 @@ def register(subparsers):
     p.add_argument("--law", required=True)
     p.add_argument("--lam", type=float, required=True)
     p.add_argument("--H", type=float, required=True)
+    p.add_argument("--replicate", type=int, default=0, help="replicate k (insertion seed + k)")
     p.add_argument("--settings", default=None, help="bisection settings (JSON), step 0")
     p.add_argument("--state", default=None, help="previous state (omit for step 0)")
     p.add_argument("--summary", default=None, help="summary.json of the proposed run")

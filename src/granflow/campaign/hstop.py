@@ -98,20 +98,23 @@ def bisection_guess(cfg: dict, H: float) -> float:
                                  float(prior.get("delta2", 32.780)), float(prior.get("A", 3.355))))
 
 
-def init_bisection(law: str, lam: float, H: float, cfg: dict) -> dict:
-    """Step 0 of the bisection chain of (law, lambda, H): :class:`Bisection` from ``cfg``."""
+def init_bisection(law: str, lam: float, H: float, cfg: dict, replicate: int = 0) -> dict:
+    """Step 0 of the bisection chain of (law, lambda, H, replicate): :class:`Bisection` from
+    ``cfg``.  Replicate k brackets the same height with runs of insertion seed + k."""
     from ..steady.bisection import Bisection
 
     b = Bisection(float(H), bisection_guess(cfg, float(H)),
                   **{k: cfg[k] for k in BISECTION_KEYS if cfg.get(k) is not None})
-    return {"law": law, "lam": float(lam), "H": float(H), "step": 0, "bisection": b.state_dict()}
+    return {"law": law, "lam": float(lam), "H": float(H), "replicate": int(replicate),
+            "step": 0, "bisection": b.state_dict()}
 
 
 def bisection_next_point(state: dict) -> RunPoint | None:
     nxt = state["bisection"]["next"]
     if nxt is None:
         return None
-    return RunPoint("bracket", state["law"], float(state["lam"]), float(nxt), float(state["H"]))
+    return RunPoint("bracket", state["law"], float(state["lam"]), float(nxt), float(state["H"]),
+                    replicate=int(state.get("replicate", 0)))
 
 
 def bisection_step(state: dict, run_summary_path, run_rel: str | None = None) -> dict:
@@ -130,11 +133,13 @@ def bisection_step(state: dict, run_summary_path, run_rel: str | None = None) ->
     b = Bisection.from_state_dict(state["bisection"])
     b.record(point.theta, flow_state)
     return {"law": state["law"], "lam": state["lam"], "H": state["H"],
+            "replicate": int(state.get("replicate", 0)),
             "step": int(state["step"]) + 1, "bisection": b.state_dict(),
             "last": {"theta": point.theta, "flow_state": flow_state, "run": point.path}}
 
 
 def bisection_runs(state: dict) -> list[RunPoint]:
     """The simulated runs of a (final) bisection state."""
-    return [RunPoint("bracket", state["law"], float(state["lam"]), float(t), float(state["H"]))
+    return [RunPoint("bracket", state["law"], float(state["lam"]), float(t), float(state["H"]),
+                     replicate=int(state.get("replicate", 0)))
             for t, _ in state["bisection"]["runs"]]
