@@ -83,10 +83,11 @@ def intervals(state: dict):
 BISECTION_KEYS = ("step", "tolerance", "max_runs", "theta_min", "theta_max", "resolution")
 
 
-def bisection_guess(cfg: dict, H: float) -> float:
+def bisection_guess(cfg: dict, H: float, lam: float | None = None) -> float:
     """Where the chain at height H starts: theta_stop(H) of the configured prior curve (Eq. 45
-    with the prior's delta1, delta2, A; only a starting point, it never enters a fit), or an
-    explicit per-height guess ``guess: {H: theta}``."""
+    with the prior's delta1, delta2, A -- ``priors: {lambda: {...}}`` per basal roughness, else
+    ``prior``; only a starting point, it never enters a fit), or an explicit per-height guess
+    ``guess: {H: theta}``."""
     from ..fitting.hstop import theta_stop_eq45
 
     guess = {float(k): float(v) for k, v in (cfg.get("guess") or {}).items()}
@@ -94,6 +95,9 @@ def bisection_guess(cfg: dict, H: float) -> float:
         if abs(h - H) < 1e-9:
             return t
     prior = cfg.get("prior") or {}
+    for lm, pr in (cfg.get("priors") or {}).items():
+        if lam is not None and abs(float(lm) - float(lam)) < 1e-9:
+            prior = pr
     return float(theta_stop_eq45(float(H), float(prior.get("delta1", 17.708)),
                                  float(prior.get("delta2", 32.780)), float(prior.get("A", 3.355))))
 
@@ -103,7 +107,7 @@ def init_bisection(law: str, lam: float, H: float, cfg: dict, replicate: int = 0
     ``cfg``.  Replicate k brackets the same height with runs of insertion seed + k."""
     from ..steady.bisection import Bisection
 
-    b = Bisection(float(H), bisection_guess(cfg, float(H)),
+    b = Bisection(float(H), bisection_guess(cfg, float(H), float(lam)),
                   **{k: cfg[k] for k in BISECTION_KEYS if cfg.get(k) is not None})
     return {"law": law, "lam": float(lam), "H": float(H), "replicate": int(replicate),
             "step": 0, "bisection": b.state_dict()}
