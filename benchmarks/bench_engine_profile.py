@@ -51,11 +51,19 @@ _clock_gettime = _libc.clock_gettime
 _clock_gettime.argtypes = [ctypes.c_int, ctypes.c_void_p]
 _clock_gettime.restype = ctypes.c_int
 CLOCK_MONOTONIC = 1
+CLOCK_PROCESS_CPUTIME_ID = 2
+#: clock of the profile: CPU time of the process by default (robust on a shared machine with one
+#: thread; ``--clock wall`` for more threads)
+CLOCK = CLOCK_PROCESS_CPUTIME_ID if os.environ.get("GRANFLOW_PROFILE_CLOCK", "cpu") == "cpu" \
+    else CLOCK_MONOTONIC
+
+
+_timer = time.process_time if CLOCK == CLOCK_PROCESS_CPUTIME_ID else time.perf_counter
 
 
 @njit
 def _now(buf):
-    _clock_gettime(CLOCK_MONOTONIC, buf.ctypes)
+    _clock_gettime(CLOCK, buf.ctypes)
     return float(buf[0]) + 1e-9 * float(buf[1])
 
 
@@ -119,13 +127,13 @@ def legacy_profile(s, nsteps):
     acc = np.zeros(NCAT)
     buf = np.zeros(2, np.int64)
     s._cache_inverse()
-    t0 = time.perf_counter()
+    t0 = _timer()
     s.pi, s.pj, s.hist_t, s.hist_dmax = _legacy_loop(
         nsteps, s.pos, s.vel, s.omega, s.force, s.torque, s.radius, s._inv_mass, s.mass,
         s._inv_inertia, s.ptype, s.fixed, s.Lx, s.Ly, s.gvec, s.pi, s.pj, s.hist_t, s.hist_dmax,
         s.pos_ref, s.skin, s._level_of, s._level_cell, s.use_wall, s.wall_type, s.wall_hist,
         s.wall_dmax, *s.tables, s.dt, s.pair_out, s.wall_out, buf, acc)
-    wall = time.perf_counter() - t0
+    wall = _timer() - t0
     return acc, wall, {}
 
 
@@ -138,9 +146,9 @@ def profile(state, nsteps, new_api):
     acc, wall, labels = fn(s, nsteps)
     # the profiled loop must reach the state that the engine's own stepping reaches
     t = B.make_system(state, ref, fb)
-    t0 = time.perf_counter()
+    t0 = _timer()
     t.step(nsteps)
-    engine_wall = time.perf_counter() - t0
+    engine_wall = _timer() - t0
     same = all(np.array_equal(getattr(s, k), getattr(t, k)) for k in ("pos", "vel", "omega"))
     return acc, wall, engine_wall, same, labels
 
@@ -158,6 +166,8 @@ def main(argv=None):
     numba.set_num_threads(args.threads)
     state = B.prepare(args.H, args.seed, False, 10.0, 60.0, 1.0)
     new_api = hasattr(K, "STEP_API")
+    print(f"clock: {'process CPU time' if CLOCK == CLOCK_PROCESS_CPUTIME_ID else 'wall'} "
+          "(GRANFLOW_PROFILE_CLOCK=cpu|wall)")
     print(f"engine: {Path(K.__file__).parent.parent.parent.parent} "
           f"({'issue-15 step loop' if new_api else 'legacy step loop'}), {args.threads} thread(s), "
           f"{args.steps} steps x {args.repeat} repeats")
@@ -191,8 +201,83 @@ def main(argv=None):
         raise SystemExit("the profiled loop did not reproduce ParticleSystem.step bit for bit")
 
 
-def new_profile(s, nsteps):  # filled in with the issue-15 step loop
-    raise NotImplementedError
+# ------------------------------------------------------------------------------ issue-15 engine
+@njit
+def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype,
+              fixed, Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, rstart, cstart, cpair,
+              colslot, cmark, stamp, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
+              blk_pair_erel, pos_ref, skin, level_of, level_cell, use_wall, wall_type, wall_hist,
+              wall_dmax, wall_rows, wall_state, law_tab, coef, all_linear, work, dt, buf, acc):
+    """``kernels.advance`` (issue 15) with clock reads; the guards are left out."""
+    n = pos.shape[0]
+    nblock = (n + K.PARTICLE_BLOCK - 1) // K.PARTICLE_BLOCK
+    blk_overlap = np.zeros(nblock)
+    blk_erel = np.zeros(nblock)
+    blk_bad = np.zeros(nblock, dtype=np.bool_)
+    blk_disp = np.zeros(nblock)
+    half_skin2 = 0.25 * skin * skin
+    vel_p = np.empty_like(vel)
+    omega_p = np.empty_like(omega)
+    t0 = _now(buf)
+    K.particle_pass(False, False, True, False, pos, vel, omega, vel_p, omega_p, force, torque,
+                    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart,
+                    cpair, crow, ridx, pstate, cmark, stamp, use_wall, wall_type, wall_hist,
+                    wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap,
+                    blk_erel, blk_bad, blk_disp)
+    acc[INTEG] += _now(buf) - t0
+    for step in range(nsteps):
+        t0 = _now(buf)
+        disp2 = 0.0
+        for b in range(nblock):
+            if blk_disp[b] > disp2:
+                disp2 = blk_disp[b]
+        t1 = _now(buf)
+        acc[DISP] += t1 - t0
+        if disp2 > half_skin2:
+            pi, pj, hist_t, hist_dmax = K.rebuild_pairs(pos, radius, fixed, Lx, Ly, skin,
+                                                        level_of, level_cell, pi, pj, hist_t,
+                                                        hist_dmax)
+            (hflag, mred, rstart, cstart, cpair, colslot, cmark, stamp, crow, cext, ridx, prel,
+             pstate, scratch, blk_pair_overlap, blk_pair_erel) = K.pair_index(pi, pj, hist_t,
+                                                                              inv_mass, n)
+            pos_ref[:, :] = pos
+            t2 = _now(buf)
+            acc[REBUILD] += t2 - t1
+            t1 = t2
+        K._next_stamp(stamp, cmark)
+        K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
+                    hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext,
+                    ridx, prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap,
+                    blk_pair_erel)
+        t2 = _now(buf)
+        K.particle_pass(True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p, omega_p,
+                        force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec,
+                        dt, rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall,
+                        wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
+                        pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp)
+        t3 = _now(buf)
+        acc[PAIR] += t2 - t1
+        acc[ACC] += t3 - t2
+    return pi, pj, hist_t, hist_dmax
+
+
+def new_profile(s, nsteps):
+    acc = np.zeros(NCAT)
+    buf = np.zeros(2, np.int64)
+    s._cache_inverse()
+    s._index_pairs()
+    t0 = _timer()
+    s.pi, s.pj, s.hist_t, s.hist_dmax = _new_loop(
+        nsteps, s.pos, s.vel, s.omega, s.force, s.torque, s.radius, s._inv_mass, s.mass,
+        s._inv_inertia, s.ptype, s.fixed, s.Lx, s.Ly, s.gvec, s.pi, s.pj, s.hist_t, s.hist_dmax,
+        *s._pair, s.pos_ref, s.skin, s._level_of, s._level_cell, s.use_wall, s.wall_type,
+        s.wall_hist, s.wall_dmax, s.wall_rows, s.wall_state, *s._coefficients(), s._work, s.dt,
+        buf, acc)
+    wall = _timer() - t0
+    labels = {"accumulate": "particle pass (pull+kicks+drift+wall+disp)",
+              "integrate": "first opening kick/drift (once)",
+              "max_displacement": "max_displacement (block maxima)"}
+    return acc, wall, labels
 
 
 if __name__ == "__main__":
