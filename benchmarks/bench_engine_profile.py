@@ -36,6 +36,7 @@ import sys
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 from numba import njit
 
@@ -218,8 +219,9 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     half_skin2 = 0.25 * skin * skin
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
+    pull = numba.get_num_threads() > 1
     t0 = _now(buf)
-    K.particle_pass(False, False, True, False, pos, vel, omega, vel_p, omega_p, force, torque,
+    K.particle_pass(False, pull, False, True, False, pos, vel, omega, vel_p, omega_p, force, torque,
                     radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart,
                     cpair, crow, ridx, pstate, cmark, stamp, use_wall, wall_type, wall_hist,
                     wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap,
@@ -248,9 +250,9 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
         K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
                     hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext,
                     ridx, prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap,
-                    blk_pair_erel)
+                    blk_pair_erel, not pull, force, torque)
         t2 = _now(buf)
-        K.particle_pass(True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p, omega_p,
+        K.particle_pass(True, pull, True, step + 1 < nsteps, False, pos, vel, omega, vel_p, omega_p,
                         force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec,
                         dt, rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall,
                         wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,

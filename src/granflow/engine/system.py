@@ -202,7 +202,8 @@ class ParticleSystem:
             self.Ly, self.gvec, self.pi, self.pj, self.hist_t, self.hist_dmax,
             *self._pair, self.pos_ref, self.skin, self._level_of, self._level_cell,
             self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows,
-            self.wall_state, *self._coefficients(), self._work, self.dt, max_allowed)
+            self.wall_state, *self._coefficients(), self._work, self.dt, max_allowed,
+            numba.get_num_threads() > 1)
         self.step_count += int(done)
         self.time = self.step_count * self.dt
         self.n_rebuilds += int(nreb)

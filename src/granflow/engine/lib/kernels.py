@@ -45,7 +45,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .hgrid import hgrid_pairs
+from .hgrid import DEFAULT_CAPACITY, hgrid_pairs_u32
 
 LAW_LINEAR = 0
 LAW_HERTZ = 1
@@ -86,6 +86,15 @@ def _wrap_image(dx, L, half_L):
     if dx < -half_L:
         return dx + L
     return dx
+
+
+@njit(cache=True, inline="always")
+def _wrap_select(dx, L, half_L):
+    """:func:`_wrap_image` as two selects (vectorisable), the same value."""
+    a = dx - L
+    dx = a if dx > half_L else dx
+    b = dx + L
+    return b if dx < -half_L else dx
 
 
 # --------------------------------------------------------------------------------------------
@@ -539,7 +548,8 @@ def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
 @njit(cache=True, parallel=True, error_model="numpy")
 def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow, cext,
-              ridx, prel, pstate, scratch, colslot, cmark, stamp, blk_overlap, blk_erel):
+              ridx, prel, pstate, scratch, colslot, cmark, stamp, blk_overlap, blk_erel, push,
+              force, torque):
     """Contact forces of all listed pairs (see the module docstring).
 
     ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
@@ -553,6 +563,10 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
     history.  Per block: the largest overlap and the released energy (summed in pair order).
     ``scratch`` (uint32, one per pair) holds the block-local lists of touching pairs; ``work``
     (one row per thread) the vectorised linear contacts (``all_linear``).
+
+    ``push`` (one thread only: blocks run in order): instead of marking the contacts, add them
+    to ``force`` and ``torque`` (which hold gravity) in pair order — the sums of the particle
+    pass's pull, bit for bit, without its second pass over the pairs.
     """
     npair = pi.shape[0]
     nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
@@ -563,25 +577,34 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
         b = np.int64(bu)
         p0 = b * PAIR_BLOCK
         p1 = min(p0 + PAIR_BLOCK, npair)
-        # scan: compact the touching pairs (branch-free), release the opened ones
-        nc = p0
-        erel = 0.0
+        # scan (vectorised, gathers): which pairs touch
         for p in range(p0, p1):
             i = pi[p]
             j = pj[p]
-            dx = _wrap_image(pos[i, 0] - pos[j, 0], Lx, half_Lx)
-            dy = _wrap_image(pos[i, 1] - pos[j, 1], Ly, half_Ly)
+            dx = _wrap_select(pos[i, 0] - pos[j, 0], Lx, half_Lx)
+            dy = _wrap_select(pos[i, 1] - pos[j, 1], Ly, half_Ly)
             dz = pos[i, 2] - pos[j, 2]
             r2 = dx * dx + dy * dy + dz * dz
             rsum = radius[i] + radius[j]
-            touching = r2 < rsum * rsum
-            pstate[p] = NO_CONTACT
+            pstate[p] = r2 < rsum * rsum
+        # compaction (branch-free): touching pairs to the front of the block's scratch, pairs
+        # whose contact opened (a spring, no longer touching) to its back
+        nc = p0
+        no = p1
+        for p in range(p0, p1):
+            t = pstate[p]
             scratch[nc] = p
-            nc += np.int64(touching)
-            if update_history and hflag[p] != 0 and not touching:
-                erel += _pair_contact(p, 0, pos, vel, omega, vel_h, omega_h, radius, ptype, box,
-                                      pi, pj, mred, hist_t, hist_dmax, hflag, law_tab, coef, dt,
-                                      update_history, crow, cext, ridx, prel, pstate, False)
+            nc += t
+            scratch[no - 1] = p  # a free slot (or the one just taken, with the same p)
+            no -= hflag[p] & (t ^ 1)
+        # release of the opened contacts (in pair order)
+        erel = 0.0
+        if update_history:
+            for q in range(p1 - 1, no - 1, -1):
+                erel += _pair_contact(np.int64(scratch[q]), 0, pos, vel, omega, vel_h, omega_h,
+                                      radius, ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag,
+                                      law_tab, coef, dt, update_history, crow, cext, ridx, prel,
+                                      pstate, False)
         # contacts of the touching pairs
         if all_linear:
             tid = numba.get_thread_id()
@@ -597,13 +620,22 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
                 _pair_contact(np.int64(scratch[q]), q, pos, vel, omega, vel_h, omega_h, radius,
                               ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag, law_tab, coef,
                               dt, update_history, crow, cext, ridx, prel, pstate, True)
-        # mark the contacts for the particle pass; largest overlap of the block
+        # mark the contacts for the particle pass (or push them); largest overlap of the block
         ov = 0.0
         st = stamp[0]
         for q in range(p0, nc):
             p = scratch[q]
             if pstate[p] == CONTACT:
-                cmark[colslot[p]] = st
+                if push:
+                    i = pi[p]
+                    j = pj[p]
+                    for k in range(3):
+                        force[i, k] += crow[q, k]
+                        force[j, k] -= crow[q, k]
+                        torque[i, k] += crow[q, 3 + k]
+                        torque[j, k] += crow[q, 6 + k]
+                else:
+                    cmark[colslot[p]] = st
                 if cext[q, 1] > ov:
                     ov = cext[q, 1]
         blk_overlap[b] = ov
@@ -677,8 +709,8 @@ def _wall_contact(i, pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, w
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def particle_pass(
-    do_sum, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque, radius,
-    inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart, cpair, crow, ridx,
+    do_sum, pull, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque,
+    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart, cpair, crow, ridx,
     pstate, cmark, stamp, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
     law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp,
 ):
@@ -686,10 +718,11 @@ def particle_pass(
 
     For every particle, in this order: ``do_wall``: its flat-wall contact at the current state
     (without history update: the initial forces); ``do_sum``: force = gravity + the rows of its
-    pairs in increasing pair index + its wall row, torque likewise; ``do_kick``: the closing
-    half kick; ``do_begin``: the next step's opening half kick, drift, predicted velocity
-    (``vel_p``, ``omega_p``), flat-wall contact (history updated) and squared displacement since
-    the last neighbour build.  Per block: the largest wall overlap, the spring energy released
+    pairs in increasing pair index (``pull``; else the pair pass pushed them) + its wall row,
+    torque likewise; ``do_kick``: the closing half kick; ``do_begin``: the next step's opening
+    half kick, drift, predicted velocity (``vel_p``, ``omega_p``), force reset to gravity (when
+    not ``pull``), flat-wall contact (history updated) and squared displacement since the last
+    neighbour build.  Per block: the largest wall overlap, the spring energy released
     at the wall, a non-finite-force flag and the largest displacement (inf for a NaN position).
     """
     n = pos.shape[0]
@@ -709,7 +742,22 @@ def particle_pass(
         ov = 0.0
         erel_wall = 0.0
         bad = False
-        if do_sum:
+        if do_sum and not pull:
+            for i in range(i0, i1):
+                if use_wall:
+                    st = wall_state[i]
+                    if st == CONTACT:
+                        for k in range(3):
+                            force[i, k] += wall_rows[i, k]
+                            torque[i, k] += wall_rows[i, 3 + k]
+                        if wall_rows[i, 10] > ov:
+                            ov = wall_rows[i, 10]
+                    elif st == OPENED:
+                        erel_wall += wall_rows[i, 9]
+                if not np.isfinite(force[i, 0] + force[i, 1] + force[i, 2] + torque[i, 0]
+                                   + torque[i, 1] + torque[i, 2]):
+                    bad = True
+        if do_sum and pull:
             for i in range(i0, i1):
                 if inv_mass[i] > 0.0:
                     fx = mass[i] * gvec[0]
@@ -788,12 +836,15 @@ def particle_pass(
                 if inv_mass[i] != 0.0:
                     x = pos[i, 0] + dt * vel[i, 0]
                     y = pos[i, 1] + dt * vel[i, 1]
-                    x -= Lx * np.floor(x / Lx)
-                    y -= Ly * np.floor(y / Ly)
-                    if x >= Lx:
-                        x = 0.0
-                    if y >= Ly:
-                        y = 0.0
+                    # periodic wrap; the division only for the rare particle that crossed a face
+                    if not (0.0 <= x < Lx):
+                        x -= Lx * np.floor(x / Lx)
+                        if x >= Lx:
+                            x = 0.0
+                    if not (0.0 <= y < Ly):
+                        y -= Ly * np.floor(y / Ly)
+                        if y >= Ly:
+                            y = 0.0
                     pos[i, 0] = x
                     pos[i, 1] = y
                     pos[i, 2] += dt * vel[i, 2]
@@ -805,14 +856,25 @@ def particle_pass(
                 for k in range(3):
                     vel_p[i, k] = vel[i, k] + h * force[i, k] * im
                     omega_p[i, k] = omega[i, k] + h * torque[i, k] * ii
+            if not pull:
+                # the pair pass pushes the contacts onto gravity
+                for i in range(i0, i1):
+                    if inv_mass[i] > 0.0:
+                        for k in range(3):
+                            force[i, k] = mass[i] * gvec[k]
+                    else:
+                        for k in range(3):
+                            force[i, k] = 0.0
+                    for k in range(3):
+                        torque[i, k] = 0.0
             if use_wall:
                 for i in range(i0, i1):
                     _wall_contact(i, pos, vel_p, omega_p, vel, omega, radius, inv_mass, ptype,
                                   wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
                                   law_tab, coef, dt, True)
             for i in range(i0, i1):
-                dx = _min_image(pos[i, 0] - pos_ref[i, 0], Lx)
-                dy = _min_image(pos[i, 1] - pos_ref[i, 1], Ly)
+                dx = _wrap_select(pos[i, 0] - pos_ref[i, 0], Lx, 0.5 * Lx)
+                dy = _wrap_select(pos[i, 1] - pos_ref[i, 1], Ly, 0.5 * Ly)
                 dz = pos[i, 2] - pos_ref[i, 2]
                 d2 = dx * dx + dy * dy + dz * dz
                 if d2 > disp:
@@ -895,9 +957,10 @@ def pair_index(pi, pj, hist_t, inv_mass, n):
 def rebuild_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, old_pi, old_pj,
                   old_hist, old_dmax):
     """New neighbour list (uint32, sorted by (i, j)) with the contact history carried over."""
-    npi, npj = hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell)
-    pi = npi.astype(np.uint32)
-    pj = npj.astype(np.uint32)
+    n = pos.shape[0]
+    # room for the partners of a particle in the single search pass (else a second pass)
+    cap = max(DEFAULT_CAPACITY, 4 * (old_pi.shape[0] // max(n, 1)) + 8)
+    pi, pj = hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, cap)
     hist_t, hist_dmax = transfer_history(old_pi, old_pj, old_hist, old_dmax, pi, pj,
                                          pos.shape[0])
     return pi, pj, hist_t, hist_dmax
@@ -947,8 +1010,9 @@ def compute_forces(
     _next_stamp(stamp, cmark)
     pair_pass(pos, vel, omega, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, False, crow, cext, ridx,
-              prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap, blk_pair_erel)
-    particle_pass(True, False, False, True, pos, vel, omega, vel, omega, force, torque, radius,
+              prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap, blk_pair_erel,
+              False, force, torque)
+    particle_pass(True, True, False, False, True, pos, vel, omega, vel, omega, force, torque, radius,
                   inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart, cpair,
                   crow, ridx, pstate, cmark, stamp, use_wall, wall_type, wall_hist, wall_dmax,
                   wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
@@ -967,11 +1031,15 @@ def advance(
     Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, rstart, cstart, cpair, colslot, cmark,
     stamp, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, pos_ref,
     skin, level_of, level_cell, use_wall, wall_type, wall_hist, wall_dmax, wall_rows,
-    wall_state, law_tab, coef, all_linear, work, dt, max_overlap_allowed,
+    wall_state, law_tab, coef, all_linear, work, dt, max_overlap_allowed, pull,
 ):
     """Advance ``nsteps`` velocity-Verlet steps (Eq. 11), rebuilding the neighbour list when a
     particle has moved more than skin/2 since the last build (by the hierarchical grid of
     :mod:`.hgrid` with the levels ``level_of``/``level_cell``; one level = plain cell list).
+
+    ``pull``: the particle pass pulls the contacts from the pair rows (any number of threads);
+    else the pair pass pushes them (one thread: its blocks run in order).  Both sum in pair order:
+    the same numbers.
 
     Arrays are updated in place, except the pair arrays, which are returned (they change size
     on a rebuild).  Returns (pi, pj, hist_t, hist_dmax, the PAIR_ARRAYS tuple, e_elastic,
@@ -994,7 +1062,7 @@ def advance(
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
     if nsteps > 0:
-        particle_pass(False, False, True, False, pos, vel, omega, vel_p, omega_p, force, torque,
+        particle_pass(False, pull, False, True, False, pos, vel, omega, vel_p, omega_p, force, torque,
                       radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart,
                       cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall, wall_type,
                       wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
@@ -1019,8 +1087,9 @@ def advance(
         _next_stamp(stamp, cmark)
         pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
                   hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext, ridx,
-                  prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap, blk_pair_erel)
-        particle_pass(True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p, omega_p,
+                  prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap, blk_pair_erel,
+                  not pull, force, torque)
+        particle_pass(True, pull, True, step + 1 < nsteps, False, pos, vel, omega, vel_p, omega_p,
                       force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec,
                       dt, rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall,
                       wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
