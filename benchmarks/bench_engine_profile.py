@@ -69,8 +69,8 @@ def _now(buf):
 
 
 # categories (columns of ``acc``)
-PAIR, ACC, INTEG, REBUILD, DISP, NCAT = 0, 1, 2, 3, 4, 5
-CATS = ("pair_forces", "accumulate", "integrate", "rebuild", "max_displacement")
+PAIR, ACC, INTEG, REBUILD, DISP, NEAR, NCAT = 0, 1, 2, 3, 4, 5, 6
+CATS = ("pair_forces", "accumulate", "integrate", "rebuild", "max_displacement", "near list")
 
 
 # ------------------------------------------------------------------------------ legacy engine
@@ -190,7 +190,7 @@ def main(argv=None):
     print(f"{'part':<34} {'us/step':>8} {'share':>6}")
     for k, name in enumerate(CATS):
         label = labels.get(name, name)
-        if label is None:
+        if label is None or (name == "near list" and not new_api):
             continue
         print(f"{label:<34} {acc[k] / args.steps * 1e6:8.1f} {acc[k] / wall:6.1%}")
     other = wall - acc.sum()
@@ -207,8 +207,9 @@ def main(argv=None):
 def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype,
               fixed, Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, rstart, cstart, cpair,
               colslot, cmark, stamp, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
-              blk_pair_erel, pos_ref, skin, level_of, level_cell, use_wall, wall_type, wall_hist,
-              wall_dmax, wall_rows, wall_state, law_tab, coef, all_linear, work, dt, buf, acc):
+              blk_pair_erel, near, near_count, ntouch, near_ref, near_ok, pos_ref, skin, level_of,
+              level_cell, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
+              law_tab, coef, all_linear, work, dt, pull, buf, acc):
     """``kernels.advance`` (issue 15) with clock reads; the guards are left out."""
     n = pos.shape[0]
     nblock = (n + K.PARTICLE_BLOCK - 1) // K.PARTICLE_BLOCK
@@ -216,23 +217,26 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     blk_erel = np.zeros(nblock)
     blk_bad = np.zeros(nblock, dtype=np.bool_)
     blk_disp = np.zeros(nblock)
+    blk_disp_near = np.zeros(nblock)
     half_skin2 = 0.25 * skin * skin
+    near_skin = K.NEAR_FRACTION * skin
+    half_near2 = 0.25 * near_skin * near_skin
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
-    pull = numba.get_num_threads() > 1
     t0 = _now(buf)
-    K.particle_pass(False, pull, False, True, False, pos, vel, omega, vel_p, omega_p, force, torque,
-                    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart,
-                    cpair, crow, ridx, pstate, cmark, stamp, use_wall, wall_type, wall_hist,
-                    wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap,
-                    blk_erel, blk_bad, blk_disp)
+    K.particle_pass(False, pull, False, True, False, pos, vel, omega, vel_p, omega_p, force,
+                    torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart,
+                    cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall, wall_type,
+                    wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
+                    blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
     acc[INTEG] += _now(buf) - t0
     for step in range(nsteps):
         t0 = _now(buf)
         disp2 = 0.0
+        disp2_near = 0.0
         for b in range(nblock):
-            if blk_disp[b] > disp2:
-                disp2 = blk_disp[b]
+            disp2 = max(disp2, blk_disp[b])
+            disp2_near = max(disp2_near, blk_disp_near[b])
         t1 = _now(buf)
         acc[DISP] += t1 - t0
         if disp2 > half_skin2:
@@ -240,23 +244,31 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
                                                         level_of, level_cell, pi, pj, hist_t,
                                                         hist_dmax)
             (hflag, mred, rstart, cstart, cpair, colslot, cmark, stamp, crow, cext, ridx, prel,
-             pstate, scratch, blk_pair_overlap, blk_pair_erel) = K.pair_index(pi, pj, hist_t,
-                                                                              inv_mass, n)
+             pstate, scratch, blk_pair_overlap, blk_pair_erel, near, near_count, ntouch,
+             near_ref, near_ok) = K.pair_index(pi, pj, hist_t, inv_mass, n)
             pos_ref[:, :] = pos
             t2 = _now(buf)
             acc[REBUILD] += t2 - t1
+            t1 = t2
+        if near_ok[0] == 0 or disp2_near > half_near2:
+            K.near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near, near_count, pstate)
+            near_ref[:, :] = pos
+            near_ok[0] = 1
+            t2 = _now(buf)
+            acc[NEAR] += t2 - t1
             t1 = t2
         K._next_stamp(stamp, cmark)
         K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
                     hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext,
                     ridx, prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap,
-                    blk_pair_erel, not pull, force, torque)
+                    blk_pair_erel, not pull, force, torque, near, near_count, ntouch)
         t2 = _now(buf)
-        K.particle_pass(True, pull, True, step + 1 < nsteps, False, pos, vel, omega, vel_p, omega_p,
-                        force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec,
-                        dt, rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall,
-                        wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
-                        pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp)
+        K.particle_pass(True, pull, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
+                        omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx,
+                        Ly, gvec, dt, rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp,
+                        use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
+                        law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp,
+                        near_ref, blk_disp_near)
         t3 = _now(buf)
         acc[PAIR] += t2 - t1
         acc[ACC] += t3 - t2
@@ -274,9 +286,10 @@ def new_profile(s, nsteps):
         s._inv_inertia, s.ptype, s.fixed, s.Lx, s.Ly, s.gvec, s.pi, s.pj, s.hist_t, s.hist_dmax,
         *s._pair, s.pos_ref, s.skin, s._level_of, s._level_cell, s.use_wall, s.wall_type,
         s.wall_hist, s.wall_dmax, s.wall_rows, s.wall_state, *s._coefficients(), s._work, s.dt,
-        buf, acc)
+        numba.get_num_threads() > 1, buf, acc)
     wall = _timer() - t0
     labels = {"accumulate": "particle pass (pull+kicks+drift+wall+disp)",
+              "near list": "near list (rebuild)",
               "integrate": "first opening kick/drift (once)",
               "max_displacement": "max_displacement (block maxima)"}
     return acc, wall, labels

@@ -149,7 +149,7 @@ class ParticleSystem:
             self.mass, self._inv_inertia, self.ptype, self.Lx, self.Ly, self.gvec, self.pi,
             self.pj, self.hist_t, self.hist_dmax, *self._pair, self.use_wall,
             self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows, self.wall_state,
-            *self._coefficients(), self._work, self.dt, self.pos_ref)
+            *self._coefficients(), self._work, self.dt, self.pos_ref, self.skin)
 
     def _index_pairs(self, saved: dict | None = None):
         """Per-pair arrays derived from the pair list (pull index, reduced masses, spring flags)
