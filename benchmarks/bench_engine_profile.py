@@ -59,6 +59,9 @@ CLOCK = CLOCK_PROCESS_CPUTIME_ID if os.environ.get("GRANFLOW_PROFILE_CLOCK", "cp
     else CLOCK_MONOTONIC
 
 
+#: run the pair pass in this many runs of blocks (``--slots``; default: the number of threads),
+#: e.g. the two-thread split on one thread, to see the cost of the split itself
+FORCE_SLOTS = 0
 _timer = time.process_time if CLOCK == CLOCK_PROCESS_CPUTIME_ID else time.perf_counter
 
 
@@ -161,7 +164,11 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--H", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--slots", type=int, default=0,
+                    help="runs of blocks of the pair pass (default: the number of threads)")
     args = ap.parse_args(argv)
+    global FORCE_SLOTS
+    FORCE_SLOTS = args.slots
     import numba
 
     numba.set_num_threads(args.threads)
@@ -205,11 +212,11 @@ def main(argv=None):
 # ------------------------------------------------------------------------------ issue-15 engine
 @njit
 def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype,
-              fixed, Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, rstart, cstart, cpair,
-              colslot, cmark, stamp, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
-              blk_pair_erel, near, near_count, ntouch, near_ref, near_ok, pos_ref, skin, level_of,
+              fixed, Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, crow, cext, ridx, prel,
+              pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, near_tmp,
+              near_count, near, near_n, ntouch, near_ref, near_ok, pos_ref, skin, level_of,
               level_cell, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
-              law_tab, coef, all_linear, work, dt, pull, buf, acc):
+              law_tab, coef, all_linear, work, dt, nslots, buf, acc):
     """``kernels.advance`` (issue 15) with clock reads; the guards are left out."""
     n = pos.shape[0]
     nblock = (n + K.PARTICLE_BLOCK - 1) // K.PARTICLE_BLOCK
@@ -224,11 +231,11 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
     t0 = _now(buf)
-    K.particle_pass(False, pull, False, True, False, pos, vel, omega, vel_p, omega_p, force,
-                    torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart,
-                    cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall, wall_type,
-                    wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
-                    blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
+    K.particle_pass(False, False, False, True, False, pos, vel, omega, vel_p, omega_p, force,
+                    torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
+                    use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
+                    coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                    blk_disp_near)
     acc[INTEG] += _now(buf) - t0
     for step in range(nsteps):
         t0 = _now(buf)
@@ -243,32 +250,35 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
             pi, pj, hist_t, hist_dmax = K.rebuild_pairs(pos, radius, fixed, Lx, Ly, skin,
                                                         level_of, level_cell, pi, pj, hist_t,
                                                         hist_dmax)
-            (hflag, mred, rstart, cstart, cpair, colslot, cmark, stamp, crow, cext, ridx, prel,
-             pstate, scratch, blk_pair_overlap, blk_pair_erel, near, near_count, ntouch,
-             near_ref, near_ok) = K.pair_index(pi, pj, hist_t, inv_mass, n)
+            (hflag, mred, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
+             blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n, ntouch, near_ref,
+             near_ok) = K.pair_index(pi, pj, hist_t, inv_mass, n)
             pos_ref[:, :] = pos
             t2 = _now(buf)
             acc[REBUILD] += t2 - t1
             t1 = t2
         if near_ok[0] == 0 or disp2_near > half_near2:
-            K.near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near, near_count, pstate)
+            K.near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count,
+                        pstate)
+            K.near_index(near_tmp, near_count, near, near_n)
             near_ref[:, :] = pos
             near_ok[0] = 1
             t2 = _now(buf)
             acc[NEAR] += t2 - t1
             t1 = t2
-        K._next_stamp(stamp, cmark)
         K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
                     hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext,
-                    ridx, prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap,
-                    blk_pair_erel, not pull, force, torque, near, near_count, ntouch)
+                    ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc,
+                    nslots, force, torque, near, near_n, ntouch)
+        nbp = (near_n[0] + K.PAIR_BLOCK - 1) // K.PAIR_BLOCK
+        K.push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+                    torque)
         t2 = _now(buf)
-        K.particle_pass(True, pull, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
+        K.particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
                         omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx,
-                        Ly, gvec, dt, rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp,
-                        use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
-                        law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp,
-                        near_ref, blk_disp_near)
+                        Ly, gvec, dt, use_wall, wall_type, wall_hist, wall_dmax, wall_rows,
+                        wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
+                        blk_disp, near_ref, blk_disp_near)
         t3 = _now(buf)
         acc[PAIR] += t2 - t1
         acc[ACC] += t3 - t2
@@ -286,9 +296,10 @@ def new_profile(s, nsteps):
         s._inv_inertia, s.ptype, s.fixed, s.Lx, s.Ly, s.gvec, s.pi, s.pj, s.hist_t, s.hist_dmax,
         *s._pair, s.pos_ref, s.skin, s._level_of, s._level_cell, s.use_wall, s.wall_type,
         s.wall_hist, s.wall_dmax, s.wall_rows, s.wall_state, *s._coefficients(), s._work, s.dt,
-        numba.get_num_threads() > 1, buf, acc)
+        numba.get_num_threads() if not FORCE_SLOTS else FORCE_SLOTS, buf, acc)
     wall = _timer() - t0
-    labels = {"accumulate": "particle pass (pull+kicks+drift+wall+disp)",
+    labels = {"pair_forces": "pair pass (contacts + sums)",
+              "accumulate": "particle pass (kicks+drift+wall+disp)",
               "near list": "near list (rebuild)",
               "integrate": "first opening kick/drift (once)",
               "max_displacement": "max_displacement (block maxima)"}

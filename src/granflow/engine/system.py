@@ -149,7 +149,8 @@ class ParticleSystem:
             self.mass, self._inv_inertia, self.ptype, self.Lx, self.Ly, self.gvec, self.pi,
             self.pj, self.hist_t, self.hist_dmax, *self._pair, self.use_wall,
             self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows, self.wall_state,
-            *self._coefficients(), self._work, self.dt, self.pos_ref, self.skin)
+            *self._coefficients(), self._work, self.dt, self.pos_ref, self.skin,
+            numba.get_num_threads())
 
     def _index_pairs(self, saved: dict | None = None):
         """Per-pair arrays derived from the pair list (pull index, reduced masses, spring flags)
@@ -203,7 +204,7 @@ class ParticleSystem:
             *self._pair, self.pos_ref, self.skin, self._level_of, self._level_cell,
             self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows,
             self.wall_state, *self._coefficients(), self._work, self.dt, max_allowed,
-            numba.get_num_threads() > 1)
+            numba.get_num_threads())
         self.step_count += int(done)
         self.time = self.step_count * self.dt
         self.n_rebuilds += int(nreb)

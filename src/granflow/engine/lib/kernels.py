@@ -66,7 +66,7 @@ GRAZING = 3
 #: Particles per block of the particle pass (blocks fix the order of the per-block reductions).
 PARTICLE_BLOCK = 256
 #: Listed pairs per block of the pair pass.
-PAIR_BLOCK = 1024
+PAIR_BLOCK = 512
 #: Marks the step API of issue 15 (used by benchmarks/bench_engine_profile.py).
 STEP_API = 1
 RELEASE_FRACTION = 0.5
@@ -553,106 +553,126 @@ def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
 @njit(cache=True, parallel=True, error_model="numpy")
 def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow, cext,
-              ridx, prel, pstate, scratch, colslot, cmark, stamp, blk_overlap, blk_erel, push,
-              force, torque, near, near_count, ntouch):
-    """Contact forces of all listed pairs (see the module docstring).
+              ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, nslots, force, torque,
+              near, near_n, ntouch):
+    """Contact forces of the pairs of the near list (see the module docstring).
 
     ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
-    mid-step velocities of the last drift (tangential spring increment).  Pairs are processed in
-    blocks of PAIR_BLOCK; the touching pairs of block b, in pair order, get the compact indices
-    q = b PAIR_BLOCK, b PAIR_BLOCK + 1, ... (``ridx[p] = q``): ``crow[q]`` = force on i (0:3),
-    torque on i (3:6), torque on j (6:9), ``cext[q]`` = elastic energy, overlap, normal force;
-    ``pstate[p]`` says which pairs touch, and ``cmark[colslot[p]] = stamp`` marks the contacts
-    in the column index (read by the particle pass).  A pair that stops touching while it
-    carries a spring releases the spring's energy (``prel[p]``, state OPENED) and loses its
-    history.  Per block: the largest overlap and the released energy (summed in pair order).
-    ``scratch`` (uint32, one per pair) holds the block-local lists of touching pairs; ``work``
-    (one row per thread) the vectorised linear contacts (``all_linear``).
+    mid-step velocities of the last drift (tangential spring increment).  Only the pairs of the
+    near list ``near[:near_n[0]]`` (:func:`near_pass`; in pair order) are examined: the others
+    cannot touch.  They are processed in blocks of PAIR_BLOCK near entries; ``ntouch[k]`` says
+    whether near entry k touches; the touching pairs of block b, in pair order, get the compact
+    indices q = b PAIR_BLOCK, b PAIR_BLOCK + 1, ... (``ridx[p] = q``): ``crow[q]`` = force on i
+    (0:3), torque on i (3:6), torque on j (6:9), ``cext[q]`` = elastic energy, overlap, normal
+    force; ``pstate[p]`` = CONTACT (or GRAZING: touching with zero overlap in floating point,
+    not accumulated).  A pair that stops touching while it carries a spring releases the
+    spring's energy (``prel[p]``, state OPENED) and loses its history.  Per block: the largest
+    overlap and the released energy (summed in pair order).  ``scratch`` (uint32, one per
+    pair) holds the block-local lists of touching pairs; ``work`` (one row per thread) the
+    vectorised linear contacts (``all_linear``).
 
-    Only the pairs of the near list (:func:`near_pass`) are examined; the others cannot touch.
-
-    ``push`` (one thread only: blocks run in order): instead of marking the contacts, add them
-    to ``force`` and ``torque`` (which hold gravity) in pair order — the sums of the particle
-    pass's pull, bit for bit, without its second pass over the pairs.
+    The blocks are split into ``nslots`` (the number of threads) contiguous runs, one per
+    thread.  The first run adds its contacts to ``force`` and ``torque`` (which hold gravity)
+    in pair order as it goes; the others leave their rows (``blk_nc[b]`` contacts in block b)
+    for :func:`push_rows`, which adds them afterwards, again in pair order.  So every force is
+    summed in pair order, whatever the number of threads: the same numbers for any count.
     """
-    npair = pi.shape[0]
-    nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
+    nnear = near_n[0]
+    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
     box = (Lx, Ly, 0.5 * Lx, 0.5 * Ly)
     half_Lx = 0.5 * Lx
     half_Ly = 0.5 * Ly
-    for bu in prange(nblock):
-        b = np.int64(bu)
-        p0 = b * PAIR_BLOCK
-        k1 = p0 + near_count[b]
-        # scan of the block's near pairs (vectorised, gathers; unsigned indices: no negative-
-        # index handling): which pairs touch
-        for k in range(np.uint64(p0), np.uint64(k1)):
-            p = near[k]
-            i = pi[p]
-            j = pj[p]
-            dx = _wrap_select(pos[i, 0] - pos[j, 0], Lx, half_Lx)
-            dy = _wrap_select(pos[i, 1] - pos[j, 1], Ly, half_Ly)
-            dz = pos[i, 2] - pos[j, 2]
-            r2 = dx * dx + dy * dy + dz * dz
-            rsum = radius[i] + radius[j]
-            ntouch[k] = r2 < rsum * rsum
-        # compaction (branch-free): touching pairs to the front of the block's scratch, pairs
-        # whose contact opened (a spring, no longer touching) to its back
-        ncu = np.uint64(p0)
-        nou = np.uint64(k1)
-        for k in range(np.uint64(p0), np.uint64(k1)):
-            p = near[k]
-            t = ntouch[k]
-            pstate[p] = t
-            scratch[ncu] = p
-            ncu += np.uint64(t)
-            scratch[nou - np.uint64(1)] = p  # a free slot (or the one just taken, same p)
-            nou -= np.uint64(hflag[p] & (t ^ 1))
-        nc = np.int64(ncu)
-        no = np.int64(nou)
-        # release of the opened contacts (in pair order)
-        erel = 0.0
-        if update_history:
-            for q in range(k1 - 1, no - 1, -1):
-                erel += _pair_contact(np.int64(scratch[q]), 0, pos, vel, omega, vel_h, omega_h,
-                                      radius, ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag,
-                                      law_tab, coef, dt, update_history, crow, cext, ridx, prel,
-                                      pstate, False)
-        # contacts of the touching pairs
-        if all_linear:
-            tid = numba.get_thread_id()
-            for q0 in range(p0, nc, CHUNK):
-                m = min(CHUNK, nc - q0)
-                _gather_linear(work, tid, scratch, q0, m, pos, vel, omega, vel_h, omega_h,
-                               radius, ptype, box, pi, pj, mred, hist_t, coef)
-                _linear_maths(work, tid, m, dt, update_history)
-                _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
-                                pstate, hist_t, hflag)
-        else:
-            for q in range(p0, nc):
-                _pair_contact(np.int64(scratch[q]), q, pos, vel, omega, vel_h, omega_h, radius,
-                              ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag, law_tab, coef,
-                              dt, update_history, crow, cext, ridx, prel, pstate, True)
-        # mark the contacts for the particle pass (or push them); largest overlap of the block
-        ov = 0.0
-        st = stamp[0]
-        for q in range(np.uint64(p0), np.uint64(nc)):
+    for su in prange(nslots):
+        slot = np.int64(su)
+        for b in range(slot * nblock // nslots, (slot + 1) * nblock // nslots):
+            k0 = b * PAIR_BLOCK
+            k1 = min(k0 + PAIR_BLOCK, nnear)
+            # scan of the block's near pairs (vectorised, gathers; unsigned indices: no negative-
+            # index handling): which pairs touch
+            for k in range(np.uint64(k0), np.uint64(k1)):
+                p = near[k]
+                i = pi[p]
+                j = pj[p]
+                dx = _wrap_select(pos[i, 0] - pos[j, 0], Lx, half_Lx)
+                dy = _wrap_select(pos[i, 1] - pos[j, 1], Ly, half_Ly)
+                dz = pos[i, 2] - pos[j, 2]
+                r2 = dx * dx + dy * dy + dz * dz
+                rsum = radius[i] + radius[j]
+                ntouch[k] = r2 < rsum * rsum
+            # compaction (branch-free): touching pairs to the front of the block's scratch, pairs
+            # whose contact opened (a spring, no longer touching) to its back
+            ncu = np.uint64(k0)
+            nou = np.uint64(k1)
+            for k in range(np.uint64(k0), np.uint64(k1)):
+                p = near[k]
+                t = ntouch[k]
+                pstate[p] = t
+                scratch[ncu] = p
+                ncu += np.uint64(t)
+                scratch[nou - np.uint64(1)] = p  # a free slot (or the one just taken, same p)
+                nou -= np.uint64(hflag[p] & (t ^ 1))
+            nc = np.int64(ncu)
+            no = np.int64(nou)
+            # release of the opened contacts (in pair order)
+            erel = 0.0
+            if update_history:
+                for q in range(k1 - 1, no - 1, -1):
+                    erel += _pair_contact(np.int64(scratch[q]), 0, pos, vel, omega, vel_h, omega_h,
+                                          radius, ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag,
+                                          law_tab, coef, dt, update_history, crow, cext, ridx, prel,
+                                          pstate, False)
+            # contacts of the touching pairs
+            if all_linear:
+                tid = numba.get_thread_id()
+                for q0 in range(k0, nc, CHUNK):
+                    m = min(CHUNK, nc - q0)
+                    _gather_linear(work, tid, scratch, q0, m, pos, vel, omega, vel_h, omega_h,
+                                   radius, ptype, box, pi, pj, mred, hist_t, coef)
+                    _linear_maths(work, tid, m, dt, update_history)
+                    _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
+                                    pstate, hist_t, hflag)
+            else:
+                for q in range(k0, nc):
+                    _pair_contact(np.int64(scratch[q]), q, pos, vel, omega, vel_h, omega_h, radius,
+                                  ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag, law_tab, coef,
+                                  dt, update_history, crow, cext, ridx, prel, pstate, True)
+            # push the contacts (first run of blocks); largest overlap of the block
+            ov = 0.0
+            for q in range(np.uint64(k0), np.uint64(nc)):
+                p = scratch[q]
+                if pstate[p] == CONTACT:
+                    if slot == 0:
+                        i = pi[p]
+                        j = pj[p]
+                        for k in range(3):
+                            force[i, k] += crow[q, k]
+                            force[j, k] -= crow[q, k]
+                            torque[i, k] += crow[q, 3 + k]
+                            torque[j, k] += crow[q, 6 + k]
+                    if cext[q, 1] > ov:
+                        ov = cext[q, 1]
+            blk_overlap[b] = ov
+            blk_erel[b] = erel
+            blk_nc[b] = nc - k0
+
+
+@njit(cache=True)
+def push_rows(b_start, nnear, pi, pj, crow, pstate, scratch, blk_nc, force, torque):
+    """Add the contacts of near-list blocks ``b_start...`` (left as rows by :func:`pair_pass`)
+    to the forces and torques, in pair order."""
+    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
+    for b in range(b_start, nblock):
+        k0 = b * PAIR_BLOCK
+        for q in range(np.uint64(k0), np.uint64(k0 + blk_nc[b])):
             p = scratch[q]
             if pstate[p] == CONTACT:
-                if push:
-                    i = pi[p]
-                    j = pj[p]
-                    for k in range(3):
-                        force[i, k] += crow[q, k]
-                        force[j, k] -= crow[q, k]
-                        torque[i, k] += crow[q, 3 + k]
-                        torque[j, k] += crow[q, 6 + k]
-                else:
-                    cmark[colslot[p]] = st
-                if cext[q, 1] > ov:
-                    ov = cext[q, 1]
-        blk_overlap[b] = ov
-        blk_erel[b] = erel
+                i = pi[p]
+                j = pj[p]
+                for k in range(3):
+                    force[i, k] += crow[q, k]
+                    force[j, k] -= crow[q, k]
+                    torque[i, k] += crow[q, 3 + k]
+                    torque[j, k] += crow[q, 6 + k]
 
 
 #: Skin of the near list, as a fraction of the neighbour-list skin: the pair pass examines only
@@ -663,10 +683,10 @@ NEAR_FRACTION = 0.25
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near, near_count, pstate):
-    """Near list: per block of PAIR_BLOCK listed pairs, the pairs closer than
+def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate):
+    """Near pairs per block of PAIR_BLOCK listed pairs: those closer than
     r_i + r_j + ``near_skin`` (and every pair that carries a spring), in pair order, at
-    ``near[b PAIR_BLOCK:]``, their number in ``near_count[b]``; every pair's state is reset
+    ``near_tmp[b PAIR_BLOCK:]``, their number in ``near_count[b]``; every pair's state is reset
     (pairs outside the near list keep NO_CONTACT until the next near list)."""
     npair = pi.shape[0]
     nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
@@ -676,7 +696,7 @@ def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near, near_count, p
         b = np.int64(bu)
         p0 = b * PAIR_BLOCK
         p1 = min(p0 + PAIR_BLOCK, npair)
-        for p in range(p0, p1):
+        for p in range(np.uint64(p0), np.uint64(p1)):
             i = pi[p]
             j = pj[p]
             dx = _wrap_select(pos[i, 0] - pos[j, 0], Lx, half_Lx)
@@ -685,17 +705,30 @@ def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near, near_count, p
             r2 = dx * dx + dy * dy + dz * dz
             rc = radius[i] + radius[j] + near_skin
             pstate[p] = (r2 < rc * rc) | (hflag[p] != 0)
-        c = p0
-        for p in range(p0, p1):
+        c = np.uint64(p0)
+        for p in range(np.uint64(p0), np.uint64(p1)):
             t = pstate[p]
-            near[c] = p
-            c += t
+            near_tmp[c] = p
+            c += np.uint64(t)
             pstate[p] = NO_CONTACT
-        near_count[b] = c - p0
+        near_count[b] = np.int64(c) - p0
+
+
+@njit(cache=True)
+def near_index(near_tmp, near_count, near, near_n):
+    """The near list in pair order, ``near[:near_n[0]]``, from the per-block lists of
+    :func:`near_pass`."""
+    c = 0
+    for b in range(near_count.shape[0]):
+        p0 = b * PAIR_BLOCK
+        for k in range(p0, p0 + near_count[b]):
+            near[c] = near_tmp[k]
+            c += 1
+    near_n[0] = c
 
 
 # --------------------------------------------------------------------------------------------
-# particle pass: pull the pair rows, kicks, drift, predicted velocity, flat wall, skin check
+# particle pass: kicks, drift, predicted velocity, flat wall, skin check
 # --------------------------------------------------------------------------------------------
 @njit(cache=True, inline="always", error_model="numpy")
 def _wall_contact(i, pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, wall_type,
@@ -761,26 +794,26 @@ def _wall_contact(i, pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, w
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def particle_pass(
-    do_sum, pull, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque,
-    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart, cpair, crow, ridx,
-    pstate, cmark, stamp, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
-    law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near,
+    do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque,
+    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type, wall_hist,
+    wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
+    blk_disp, near_ref, blk_disp_near,
 ):
     """The per-particle part of a step, in blocks of PARTICLE_BLOCK particles.
 
     For every particle, in this order: ``do_wall``: its flat-wall contact at the current state
-    (without history update: the initial forces); ``do_sum``: force = gravity + the rows of its
-    pairs in increasing pair index (``pull``; else the pair pass pushed them) + its wall row,
-    torque likewise; ``do_kick``: the closing half kick; ``do_begin``: the next step's opening
-    half kick, drift, predicted velocity (``vel_p``, ``omega_p``), force reset to gravity (when
-    not ``pull``), flat-wall contact (history updated) and squared displacement since the last
-    neighbour build (and since the last near list: ``near_ref``, ``blk_disp_near``).  Per block: the largest wall overlap, the spring energy released
-    at the wall, a non-finite-force flag and the largest displacement (inf for a NaN position).
+    (without history update: the initial forces); ``do_reset``: force = gravity, torque = 0;
+    ``do_sum``: add its wall row to the force and torque (the pair pass added the pairs) and
+    check them; ``do_kick``: the closing half kick; ``do_begin``: the next step's opening half
+    kick, drift, predicted velocity (``vel_p``, ``omega_p``), force reset to gravity (for the
+    next pair pass), flat-wall contact (history updated) and squared displacement since the
+    last neighbour build (``pos_ref``) and since the last near list (``near_ref``).  Per block:
+    the largest wall overlap, the spring energy released at the wall, a non-finite-force flag
+    and the largest displacements (inf for a NaN position).
     """
     n = pos.shape[0]
     nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
     h = 0.5 * dt
-    mark = stamp[0]
     for bu in prange(nblock):
         b = np.int64(bu)
         # unsigned particle indices: no negative-index handling in the loops
@@ -792,10 +825,20 @@ def particle_pass(
                 _wall_contact(i, pos, vel, omega, vel, omega, radius, inv_mass, ptype, wall_type,
                               wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, dt,
                               False)
+        if do_reset:
+            for i in range(i0, i1):
+                if inv_mass[i] > 0.0:
+                    for k in range(3):
+                        force[i, k] = mass[i] * gvec[k]
+                else:
+                    for k in range(3):
+                        force[i, k] = 0.0
+                for k in range(3):
+                    torque[i, k] = 0.0
         ov = 0.0
         erel_wall = 0.0
         bad = False
-        if do_sum and not pull:
+        if do_sum:
             for i in range(i0, i1):
                 if use_wall:
                     st = wall_state[i]
@@ -809,60 +852,6 @@ def particle_pass(
                         erel_wall += wall_rows[i, 9]
                 if not np.isfinite(force[i, 0] + force[i, 1] + force[i, 2] + torque[i, 0]
                                    + torque[i, 1] + torque[i, 2]):
-                    bad = True
-        if do_sum and pull:
-            for i in range(i0, i1):
-                if inv_mass[i] > 0.0:
-                    fx = mass[i] * gvec[0]
-                    fy = mass[i] * gvec[1]
-                    fz = mass[i] * gvec[2]
-                else:
-                    fx = 0.0
-                    fy = 0.0
-                    fz = 0.0
-                tx = 0.0
-                ty = 0.0
-                tz = 0.0
-                # pairs (k, i), k < i: they precede i's own row in the pair order
-                for u in range(cstart[i], cstart[i + np.uint64(1)]):
-                    if cmark[u] == mark:
-                        q = ridx[cpair[u]]
-                        fx -= crow[q, 0]
-                        fy -= crow[q, 1]
-                        fz -= crow[q, 2]
-                        tx += crow[q, 6]
-                        ty += crow[q, 7]
-                        tz += crow[q, 8]
-                # pairs (i, j), j > i
-                for p in range(rstart[i], rstart[i + np.uint64(1)]):
-                    if pstate[p] == CONTACT:
-                        q = ridx[p]
-                        fx += crow[q, 0]
-                        fy += crow[q, 1]
-                        fz += crow[q, 2]
-                        tx += crow[q, 3]
-                        ty += crow[q, 4]
-                        tz += crow[q, 5]
-                if use_wall:
-                    st = wall_state[i]
-                    if st == CONTACT:
-                        fx += wall_rows[i, 0]
-                        fy += wall_rows[i, 1]
-                        fz += wall_rows[i, 2]
-                        tx += wall_rows[i, 3]
-                        ty += wall_rows[i, 4]
-                        tz += wall_rows[i, 5]
-                        if wall_rows[i, 10] > ov:
-                            ov = wall_rows[i, 10]
-                    elif st == OPENED:
-                        erel_wall += wall_rows[i, 9]
-                force[i, 0] = fx
-                force[i, 1] = fy
-                force[i, 2] = fz
-                torque[i, 0] = tx
-                torque[i, 1] = ty
-                torque[i, 2] = tz
-                if not np.isfinite(fx + fy + fz + tx + ty + tz):
                     bad = True
         if do_kick and do_begin:
             # closing half kick of this step and opening half kick of the next (two roundings)
@@ -910,17 +899,16 @@ def particle_pass(
                 for k in range(3):
                     vel_p[i, k] = vel[i, k] + h * force[i, k] * im
                     omega_p[i, k] = omega[i, k] + h * torque[i, k] * ii
-            if not pull:
-                # the pair pass pushes the contacts onto gravity
-                for i in range(i0, i1):
-                    if inv_mass[i] > 0.0:
-                        for k in range(3):
-                            force[i, k] = mass[i] * gvec[k]
-                    else:
-                        for k in range(3):
-                            force[i, k] = 0.0
+            # the pair pass adds the contacts onto gravity
+            for i in range(i0, i1):
+                if inv_mass[i] > 0.0:
                     for k in range(3):
-                        torque[i, k] = 0.0
+                        force[i, k] = mass[i] * gvec[k]
+                else:
+                    for k in range(3):
+                        force[i, k] = 0.0
+                for k in range(3):
+                    torque[i, k] = 0.0
             if use_wall:
                 for i in range(i0, i1):
                     _wall_contact(i, pos, vel_p, omega_p, vel, omega, radius, inv_mass, ptype,
@@ -973,50 +961,32 @@ def transfer_history(old_i, old_j, old_t, old_dmax, new_i, new_j, n):
 
 #: The per-pair arrays derived from a pair list and written by the pair pass, in the order
 #: that :func:`pair_index` returns them and :func:`advance` takes them.
-PAIR_ARRAYS = ("hflag", "mred", "rstart", "cstart", "cpair", "colslot", "cmark", "stamp", "crow",
-               "cext", "ridx", "prel", "pstate", "scratch", "blk_pair_overlap", "blk_pair_erel",
-               "near", "near_count", "ntouch", "near_ref", "near_ok")
+PAIR_ARRAYS = ("hflag", "mred", "crow", "cext", "ridx", "prel", "pstate", "scratch",
+               "blk_pair_overlap", "blk_pair_erel", "blk_pair_nc", "near_tmp", "near_count",
+               "near", "near_n", "ntouch", "near_ref", "near_ok")
 
 
 @njit(cache=True)
 def pair_index(pi, pj, hist_t, inv_mass, n):
-    """The PAIR_ARRAYS of a sorted pair list: spring flags, reduced masses, row starts (pairs
-    by i), the column index (pairs by j, each column in increasing pair index: ``cpair``, and
-    ``colslot[p]``, the slot of pair p in it), the contact marks ``cmark`` with the current
-    ``stamp``, and the arrays the pair pass writes: compact rows ``crow`` (P, 9) and ``cext``
-    (P, 3), compact index ``ridx``, released energies ``prel``, states ``pstate``, ``scratch``
-    and the per-block overlap / released-energy arrays; the near list (``near``,
-    ``near_count``, ``ntouch``), the positions at its build ``near_ref`` and ``near_ok``
-    (0: to be built)."""
+    """The PAIR_ARRAYS of a sorted pair list: spring flags, reduced masses, the arrays the pair
+    pass writes (compact rows ``crow`` (P, 9) and ``cext`` (P, 3), compact index ``ridx``,
+    released energies ``prel``, states ``pstate``, ``scratch``, per-block overlap / released
+    energy, contacts), and the near list (:func:`near_pass`, :func:`near_index`; ``near_ok`` = 0:
+    to be built) with the positions at its build ``near_ref``."""
     npair = pi.shape[0]
-    rstart = np.zeros(n + 1, dtype=np.int64)
-    cstart = np.zeros(n + 1, dtype=np.int64)
-    for p in range(npair):
-        rstart[np.int64(pi[p]) + 1] += 1
-        cstart[np.int64(pj[p]) + 1] += 1
-    for i in range(n):
-        rstart[i + 1] += rstart[i]
-        cstart[i + 1] += cstart[i]
-    fill = cstart[:-1].copy()
-    cpair = np.empty(npair, dtype=np.uint32)
-    colslot = np.empty(npair, dtype=np.uint32)
     mred = np.empty(npair)
     hflag = np.empty(npair, dtype=np.uint8)
     for p in range(npair):
-        i = pi[p]
-        j = pj[p]
-        cpair[fill[j]] = p
-        colslot[p] = fill[j]
-        fill[j] += 1
-        mred[p] = 1.0 / (inv_mass[i] + inv_mass[j])
+        mred[p] = 1.0 / (inv_mass[pi[p]] + inv_mass[pj[p]])
         hflag[p] = _has_spring(hist_t[p, 0], hist_t[p, 1], hist_t[p, 2])
     nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
-    return (hflag, mred, rstart, cstart, cpair, colslot, np.zeros(npair, dtype=np.uint32),
-            np.zeros(1, dtype=np.uint32), np.zeros((npair, 9)), np.zeros((npair, 3)),
+    return (hflag, mred, np.zeros((npair, 9)), np.zeros((npair, 3)),
             np.zeros(npair, dtype=np.uint32), np.zeros(npair), np.zeros(npair, dtype=np.uint8),
             np.zeros(npair, dtype=np.uint32), np.zeros(nblock), np.zeros(nblock),
-            np.zeros(npair, dtype=np.uint32), np.zeros(nblock, dtype=np.int64),
-            np.zeros(npair, dtype=np.uint8), np.zeros((n, 3)), np.zeros(1, dtype=np.uint8))
+            np.zeros(nblock, dtype=np.int64), np.zeros(npair, dtype=np.uint32),
+            np.zeros(nblock, dtype=np.int64), np.zeros(npair, dtype=np.uint32),
+            np.zeros(1, dtype=np.int64), np.zeros(npair, dtype=np.uint8), np.zeros((n, 3)),
+            np.zeros(1, dtype=np.uint8))
 
 
 @njit(cache=True)
@@ -1030,16 +1000,6 @@ def rebuild_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, old_pi
     hist_t, hist_dmax = transfer_history(old_pi, old_pj, old_hist, old_dmax, pi, pj,
                                          pos.shape[0])
     return pi, pj, hist_t, hist_dmax
-
-
-@njit(cache=True)
-def _next_stamp(stamp, cmark):
-    """A contact-mark stamp not used since the marks were cleared."""
-    s = np.uint32(stamp[0] + np.uint32(1))
-    if s == 0:  # wrapped around: clear the marks
-        cmark[:] = 0
-        s = np.uint32(1)
-    stamp[0] = s
 
 
 # --------------------------------------------------------------------------------------------
@@ -1062,34 +1022,42 @@ def elastic_energy(cext, ridx, pstate, use_wall, wall_rows, wall_state):
 @njit(cache=True, parallel=True)
 def compute_forces(
     pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec,
-    pi, pj, hist_t, hist_dmax, hflag, mred, rstart, cstart, cpair, colslot, cmark, stamp, crow,
-    cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, near, near_count, ntouch,
+    pi, pj, hist_t, hist_dmax, hflag, mred, crow, cext, ridx, prel, pstate, scratch,
+    blk_pair_overlap, blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n, ntouch,
     near_ref, near_ok, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
-    coef, all_linear, work, dt, pos_ref, skin,
+    coef, all_linear, work, dt, pos_ref, skin, nslots,
 ):
     """Forces and torques of the current state without changing the contact history (the
     initial forces of a run).  Returns (elastic energy, maximum overlap)."""
-    nblock = (pos.shape[0] + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
+    n = pos.shape[0]
+    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
     blk_overlap = np.zeros(nblock)
     blk_erel = np.zeros(nblock)
     blk_bad = np.zeros(nblock, dtype=np.bool_)
     blk_disp = np.zeros(nblock)
     blk_disp_near = np.zeros(nblock)
-    near_pass(pos, radius, hflag, Lx, Ly, pi, pj, NEAR_FRACTION * skin, near, near_count, pstate)
+    near_pass(pos, radius, hflag, Lx, Ly, pi, pj, NEAR_FRACTION * skin, near_tmp, near_count,
+              pstate)
+    near_index(near_tmp, near_count, near, near_n)
     near_ref[:, :] = pos
     near_ok[0] = 1
-    _next_stamp(stamp, cmark)
+    particle_pass(True, False, False, False, True, pos, vel, omega, vel, omega, force, torque,
+                  radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
+                  wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
     pair_pass(pos, vel, omega, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, False, crow, cext, ridx,
-              prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap, blk_pair_erel,
-              False, force, torque, near, near_count, ntouch)
-    particle_pass(True, True, False, False, True, pos, vel, omega, vel, omega, force, torque,
-                  radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, rstart, cstart,
-                  cpair, crow, ridx, pstate, cmark, stamp, use_wall, wall_type, wall_hist,
-                  wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel,
-                  blk_bad, blk_disp, near_ref, blk_disp_near)
+              prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, nslots, force,
+              torque, near, near_n, ntouch)
+    nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
+    push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+              torque)
+    particle_pass(False, True, False, False, False, pos, vel, omega, vel, omega, force, torque,
+                  radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
+                  wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
     max_ov = 0.0
-    for b in range(blk_pair_overlap.shape[0]):
+    for b in range(nbp):
         max_ov = max(max_ov, blk_pair_overlap[b])
     for b in range(nblock):
         max_ov = max(max_ov, blk_overlap[b])
@@ -1099,11 +1067,11 @@ def compute_forces(
 @njit(cache=True, parallel=True)
 def advance(
     nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype, fixed,
-    Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, rstart, cstart, cpair, colslot, cmark,
-    stamp, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, near,
-    near_count, ntouch, near_ref, near_ok, pos_ref, skin, level_of, level_cell, use_wall,
-    wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, all_linear, work, dt,
-    max_overlap_allowed, pull,
+    Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, crow, cext, ridx, prel, pstate,
+    scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n,
+    ntouch, near_ref, near_ok, pos_ref, skin, level_of, level_cell, use_wall, wall_type,
+    wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, all_linear, work, dt,
+    max_overlap_allowed, nslots,
 ):
     """Advance ``nsteps`` velocity-Verlet steps (Eq. 11), rebuilding the neighbour list when a
     particle has moved more than skin/2 since the last build (by the hierarchical grid of
@@ -1112,9 +1080,8 @@ def advance(
     neighbour and near lists hold every touching pair, in pair order, whenever they are rebuilt:
     the numbers do not depend on when they are.
 
-    ``pull``: the particle pass pulls the contacts from the pair rows (any number of threads);
-    else the pair pass pushes them (one thread: its blocks run in order).  Both sum in pair order:
-    the same numbers.
+    ``nslots``: the number of threads (runs of near-list blocks of the pair pass); the forces
+    are summed in pair order for any value: the same numbers.
 
     Arrays are updated in place, except the pair arrays, which are returned (they change size
     on a rebuild).  Returns (pi, pj, hist_t, hist_dmax, the PAIR_ARRAYS tuple, e_elastic,
@@ -1140,11 +1107,11 @@ def advance(
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
     if nsteps > 0:
-        particle_pass(False, pull, False, True, False, pos, vel, omega, vel_p, omega_p, force,
+        particle_pass(False, False, False, True, False, pos, vel, omega, vel_p, omega_p, force,
                       torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
-                      rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall,
-                      wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
-                      pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
+                      use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
+                      coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                      blk_disp_near)
     for step in range(nsteps):
         done = step + 1
         disp2 = 0.0
@@ -1158,29 +1125,32 @@ def advance(
         if disp2 > half_skin2:
             pi, pj, hist_t, hist_dmax = rebuild_pairs(pos, radius, fixed, Lx, Ly, skin, level_of,
                                                       level_cell, pi, pj, hist_t, hist_dmax)
-            (hflag, mred, rstart, cstart, cpair, colslot, cmark, stamp, crow, cext, ridx, prel,
-             pstate, scratch, blk_pair_overlap, blk_pair_erel, near, near_count, ntouch,
-             near_ref, near_ok) = pair_index(pi, pj, hist_t, inv_mass, n)
+            (hflag, mred, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
+             blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n, ntouch, near_ref,
+             near_ok) = pair_index(pi, pj, hist_t, inv_mass, n)
             pos_ref[:, :] = pos
             nreb += 1
         if near_ok[0] == 0 or disp2_near > half_near2:
-            near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near, near_count, pstate)
+            near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate)
+            near_index(near_tmp, near_count, near, near_n)
             near_ref[:, :] = pos
             near_ok[0] = 1
-        _next_stamp(stamp, cmark)
         pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
                   hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext, ridx,
-                  prel, pstate, scratch, colslot, cmark, stamp, blk_pair_overlap, blk_pair_erel,
-                  not pull, force, torque, near, near_count, ntouch)
-        particle_pass(True, pull, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
+                  prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, nslots,
+                  force, torque, near, near_n, ntouch)
+        nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
+        push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+                  torque)
+        particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
                       omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly,
-                      gvec, dt, rstart, cstart, cpair, crow, ridx, pstate, cmark, stamp, use_wall,
-                      wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
-                      pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
+                      gvec, dt, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
+                      law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                      blk_disp_near)
         # per-block results combined in block order: independent of the thread count
         max_ov = 0.0
         e_pairs = 0.0
-        for b in range(blk_pair_overlap.shape[0]):
+        for b in range(nbp):
             if blk_pair_overlap[b] > max_ov:
                 max_ov = blk_pair_overlap[b]
             e_pairs += blk_pair_erel[b]
@@ -1200,9 +1170,9 @@ def advance(
             break
     e_el = elastic_energy(cext, ridx, pstate, use_wall, wall_rows, wall_state)
     return (pi, pj, hist_t, hist_dmax,
-            (hflag, mred, rstart, cstart, cpair, colslot, cmark, stamp, crow, cext, ridx, prel,
-             pstate, scratch, blk_pair_overlap, blk_pair_erel, near, near_count, ntouch,
-             near_ref, near_ok),
+            (hflag, mred, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
+             blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n, ntouch, near_ref,
+             near_ok),
             e_el, max_ov, e_released, done, nreb, status)
 
 
