@@ -102,6 +102,7 @@ class ParticleSystem:
         self.pos_ref = self.pos.copy()
         self._pair = None
         self._coef_src = None
+        self._slots_override = None
         # per-thread work rows of the vectorised contact kernel
         self._work = np.zeros((numba.config.NUMBA_NUM_THREADS, K.WORK_SIZE))
 
@@ -149,8 +150,7 @@ class ParticleSystem:
             self.mass, self._inv_inertia, self.ptype, self.Lx, self.Ly, self.gvec, self.pi,
             self.pj, self.hist_t, self.hist_dmax, *self._pair, self.use_wall,
             self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows, self.wall_state,
-            *self._coefficients(), self._work, self.dt, self.pos_ref, self.skin,
-            numba.get_num_threads())
+            *self._coefficients(), self._work, self.dt, self.pos_ref, self.skin, self._slots())
 
     def _index_pairs(self, saved: dict | None = None):
         """Per-pair arrays derived from the pair list (pull index, reduced masses, spring flags)
@@ -160,6 +160,11 @@ class ParticleSystem:
         for name, value in (saved or {}).items():
             arrays[name] = value
         self._pair = tuple(arrays[name] for name in K.PAIR_ARRAYS)
+
+    def _slots(self) -> int:
+        """Runs of pair blocks of the pair pass: the number of threads (``_slots_override``
+        for tests: more runs than threads exercise the multi-thread summation on one core)."""
+        return int(self._slots_override or numba.get_num_threads())
 
     def _coefficients(self):
         """(law table, packed coefficient table, all-linear flag) of ``self.tables`` (which
@@ -204,7 +209,7 @@ class ParticleSystem:
             *self._pair, self.pos_ref, self.skin, self._level_of, self._level_cell,
             self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows,
             self.wall_state, *self._coefficients(), self._work, self.dt, max_allowed,
-            numba.get_num_threads())
+            self._slots())
         self.step_count += int(done)
         self.time = self.step_count * self.dt
         self.n_rebuilds += int(nreb)
