@@ -30,14 +30,16 @@ directions with fewer than 3 cells on a level are handled by de-duplicating the 
 both sides with an ``i < j`` filter; cross-level search: a box wider than the level visits each
 cell once).  Cell searches are widened by a relative 1e-9 margin so that floating-point rounding
 at cell faces can never lose a pair: the result is exact, the distance test is the one of
-``neighbour_pairs`` evaluated on the same operands (bitwise the same decision).
+``neighbour_pairs`` (the same squared distance; the minimum image by comparison with L/2, see
+:func:`_accept`).
 
-Output: ``(pi, pj)`` int64, all pairs ``i < j``, not both fixed, with minimum-image distance
-``< r_i + r_j + skin``, sorted by ``(i, j)`` — exactly the arrays of ``neighbour_pairs``.  The
-pairs are found per particle in parallel (``prange`` over the particles in cell order, on
-cell-ordered copies of the coordinates; count pass, prefix sum, fill pass), then transposed to
-rows of the lower index with a serial counting sort and each row sorted (``prange``), so the
-result does not depend on the number of threads.  With a single level this is the classical
+Output: ``(pi, pj)`` int64 (uint32 from :func:`hgrid_pairs_u32`), all pairs ``i < j``, not both
+fixed, with minimum-image distance ``< r_i + r_j + skin``, sorted by ``(i, j)`` — exactly the
+arrays of ``neighbour_pairs``.  The pairs are found per particle in parallel (``prange`` over
+the particles in cell order, on cell-ordered copies of the coordinates) in one pass that keeps
+up to ``cap`` partners per particle (a second pass, with the exact counts, only if a particle
+found more), then transposed to rows of the lower index with a serial counting sort and each
+row sorted (``prange``), so the result does not depend on the number of threads.  With a single level this is the classical
 linked-cell method with a half shell; it is itself ~1.3-1.8x faster than ``neighbour_pairs``
 (full shell with a ``j > i`` filter), see ``benchmarks/bench_hgrid.py``.
 
@@ -431,7 +433,9 @@ def _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx,
     return cnt
 
 
-@njit(cache=True)  # serial: cached parallel callees of cached callers segfaulted (numba cache)
+# Parallel kernels and every cached caller of them are parallel=True: a cached *serial* caller
+# of a cached parallel callee segfaulted when loaded from numba's cache (numba issue 8578).
+@njit(cache=True, parallel=True)
 def _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base, rmax,
                 count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
                 found_count, found_start, out_q, cap):
@@ -472,7 +476,7 @@ def _gather(pos, radius, fixed, level_of, cell_particles, xs, ys, zs, rs, fs, ls
         ls[su] = level_of[i]
 
 
-@njit(cache=True)  # serial, see above
+@njit(cache=True, parallel=True)
 def _sort_rows(row_start, pj):
     """Sort every row of ``pj`` in place (Shell sort, Ciura gaps; plain insertion sort for the
     short rows of a packing)."""
@@ -494,7 +498,7 @@ def _sort_rows(row_start, pj):
                 pj[a + w] = v
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)  # parallel callees (see _found_rows)
 def hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, cap):
     """:func:`hgrid_pairs` with uint32 indices, in one search pass when no particle finds more
     than ``cap`` partners (else a second pass with the exact counts)."""
@@ -571,7 +575,7 @@ def hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, cap)
 DEFAULT_CAPACITY = 24
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)  # parallel callees (see _found_rows)
 def hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell):
     """All pairs i < j (not both fixed) closer than r_i + r_j + skin, sorted by (i, j).
 
@@ -580,9 +584,14 @@ def hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell):
     particles, so any assignment is exact (the efficiency needs levels ordered by size).  Callable
     from other njit kernels.
     """
-    pi, pj = hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell,
-                             DEFAULT_CAPACITY)
-    return pi.astype(np.int64), pj.astype(np.int64)
+    pi32, pj32 = hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell,
+                                 DEFAULT_CAPACITY)
+    pi = np.empty(pi32.shape[0], dtype=np.int64)
+    pj = np.empty(pi32.shape[0], dtype=np.int64)
+    for p in prange(pi32.shape[0]):
+        pi[p] = pi32[p]
+        pj[p] = pj32[p]
+    return pi, pj
 
 
 def hgrid_neighbour_pairs(pos, radius, fixed, Lx, Ly, skin, level_of=None, level_cell=None,

@@ -19,24 +19,34 @@ species (physics.md §1).
 Layout of a time step (issue 15: throughput, and the same numbers for any thread count).
 :func:`advance` runs, per step, two parallel passes and a few serial scalar reductions:
 
-1. **pair pass** (:func:`pair_pass`, parallel over blocks of listed pairs): a scan finds the
-   touching pairs of the block (a branch-free compaction into a block-local list; a one-byte
-   flag per pair says whether the pair carries a tangential spring, so non-touching pairs read
-   no history), then the contact law (:func:`_contact_force`, inlined) runs over the touching
-   pairs only and writes one row per pair (force, torques on i and j, elastic energy, overlap,
-   normal force).  Each pair writes only its own row: the result does not depend on the threads.
-2. **particle pass** (:func:`particle_pass`, parallel over fixed blocks of particles): every
-   particle *pulls* its force and torque from the rows of its pairs in increasing pair index
-   (first the pairs where it is j, then its own row of pairs where it is i: exactly the order
-   of a serial loop over the pairs), adds the flat-wall contact, and does the closing half
-   kick of this step and — fused — the opening half kick, drift, predicted velocity, wall
-   contact and Verlet-skin displacement of the next step.  Per-block maxima (overlap,
-   displacement) and partial sums are combined serially in block order, so they too are
-   independent of the thread count.
+1. **pair pass** (:func:`pair_pass`) over the *near list*: the listed pairs that were within a
+   quarter of the Verlet skin of touching when it was built (:func:`near_pass`; rebuilt after
+   an eighth of the skin of displacement; in a dense flow with skin 0.2 it holds ~65 % of the
+   listed pairs).  Per block of PAIR_BLOCK near pairs: a vectorised scan finds the touching
+   pairs, a branch-free compaction lists them (and those whose contact just opened: a one-byte
+   spring flag per pair, so non-touching pairs read no history), and the contact law runs over
+   the touching pairs only — for linear-law systems in SIMD form over chunks gathered into a
+   per-thread work row (:func:`_linear_maths`: same operations, same order as the scalar
+   :func:`_contact_force`, bitwise the same results), otherwise inlined scalar code.  Each
+   contact writes one compact row (force, torque on i, torque on j; energy, overlap, normal
+   force).  The blocks are split into one run per thread; the first run adds its contacts to
+   the forces as it goes, the other runs' rows are added after it (:func:`push_rows`), again in
+   pair order.  So every force is summed in pair order, exactly as a serial loop over the pairs
+   would, for any number of threads.
+2. **particle pass** (:func:`particle_pass`, parallel over fixed blocks of particles): the
+   flat-wall contact, the closing half kick of this step and — fused — the opening half kick,
+   drift, predicted velocity, force reset to gravity, wall contact and Verlet-skin
+   displacements of the next step.  Per-block maxima (overlap, displacement) and partial sums
+   (released spring energy) are combined serially in block order: independent of the threads.
 
-The neighbour list is rebuilt (:func:`rebuild_pairs`) when a particle has moved more than
-skin/2; pairs are stored as unsigned 32-bit indices sorted by (i, j), with the column index
-(pairs by j) used by the pull, and the reduced mass of every pair.
+The neighbour list is rebuilt (:func:`rebuild_pairs`: hierarchical grid, one search pass) when
+a particle has moved more than skin/2.  Pairs are unsigned 32-bit indices sorted by (i, j), with
+the reduced mass of every pair.  Touching pairs are always in both lists, so the numbers do not
+depend on when the lists are rebuilt (nor on the skin).
+
+Hot loops use unsigned indices (numba adds negative-index handling to signed ones) and
+``error_model="numpy"`` (no zero-division checks: a zero distance gives NaN, which the
+non-finite guard reports).  No fast-math: the results stay bitwise reproducible across machines.
 """
 
 from __future__ import annotations
@@ -50,9 +60,9 @@ from .hgrid import DEFAULT_CAPACITY, hgrid_pairs_u32
 LAW_LINEAR = 0
 LAW_HERTZ = 1
 LAW_PLASTIC = 2
-#: Columns of the per-pair (and per-particle wall) rows: f on i (0:3), torque on i (3:6),
-#: torque on j (6:9), elastic energy (9; for a pair that opened in the step: the spring
-#: energy released), overlap (10), normal force (11).
+#: Columns of the per-particle flat-wall rows: f (0:3), torque (3:6), (6:9 unused), elastic
+#: energy (9; for a contact that opened in the step: the spring energy released), overlap (10),
+#: normal force (11).
 NROW = 12
 #: Columns of the legacy per-pair output (``ParticleSystem.pair_out``): the row plus the released
 #: spring energy (12).
@@ -65,7 +75,7 @@ OPENED = 2
 GRAZING = 3
 #: Particles per block of the particle pass (blocks fix the order of the per-block reductions).
 PARTICLE_BLOCK = 256
-#: Listed pairs per block of the pair pass.
+#: Near pairs per block of the pair pass (blocks fix the order of its per-block sums).
 PAIR_BLOCK = 512
 #: Marks the step API of issue 15 (used by benchmarks/bench_engine_profile.py).
 STEP_API = 1
@@ -206,9 +216,10 @@ def _contact_force(nx, ny, nz, r, ri, rj, vi, vj, wi, wj, m_ij, law, coef, sprin
         fty *= c
         ftz *= c
         if kt > 0.0:
-            sx = -(ftx + gt * vtx) / kt
-            sy = -(fty + gt * vty) / kt
-            sz = -(ftz + gt * vtz) / kt
+            inv_kt = 1.0 / kt  # one division for the three components
+            sx = -(ftx + gt * vtx) * inv_kt
+            sy = -(fty + gt * vty) * inv_kt
+            sz = -(ftz + gt * vtz) * inv_kt
     e_el += 0.5 * kt * (sx * sx + sy * sy + sz * sz)
 
     fx = fn * nx + ftx
@@ -286,9 +297,10 @@ def _pair_contact(p, q, pos, vel, omega, vel_h, omega_h, radius, ptype, box, pi,
     ti = ptype[i]
     tj = ptype[j]
     m_ij = mred[p]
-    nx = dx / r
-    ny = dy / r
-    nz = dz / r
+    inv_r = 1.0 / r  # one division for the three components of the normal
+    nx = dx * inv_r
+    ny = dy * inv_r
+    nz = dz * inv_r
     bi = -(radius[i] - 0.5 * (radius[i] + radius[j] - r))
     bj = radius[j] - 0.5 * (radius[i] + radius[j] - r)
     # relative contact-point displacement over the step (mid-step velocities)
@@ -406,9 +418,10 @@ def _linear_maths(work, tid, m, dt, update_history):
         m_ij = w[np.uint64(W_M * CHUNK_STRIDE) + k]
         r2 = dx * dx + dy * dy + dz * dz
         r = np.sqrt(r2)
-        nx = dx / r
-        ny = dy / r
-        nz = dz / r
+        inv_r = 1.0 / r
+        nx = dx * inv_r
+        ny = dy * inv_r
+        nz = dz * inv_r
         bi = -(ri - 0.5 * (ri + rj - r))
         bj = rj - 0.5 * (ri + rj - r)
         whix = w[np.uint64(W_WHI * CHUNK_STRIDE) + k]
@@ -497,9 +510,10 @@ def _linear_maths(work, tid, m, dt, update_history):
         fty = py if slide else fty
         ftz = pz if slide else ftz
         reset = slide & (kt > 0.0)
-        px = -(ftx + gt * vtx) / kt
-        py = -(fty + gt * vty) / kt
-        pz = -(ftz + gt * vtz) / kt
+        inv_kt = 1.0 / kt
+        px = -(ftx + gt * vtx) * inv_kt
+        py = -(fty + gt * vty) * inv_kt
+        pz = -(ftz + gt * vtz) * inv_kt
         sx = px if reset else sx
         sy = py if reset else sy
         sz = pz if reset else sz
@@ -587,8 +601,8 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
         for b in range(slot * nblock // nslots, (slot + 1) * nblock // nslots):
             k0 = b * PAIR_BLOCK
             k1 = min(k0 + PAIR_BLOCK, nnear)
-            # scan of the block's near pairs (vectorised, gathers; unsigned indices: no negative-
-            # index handling): which pairs touch
+            # scan of the block's near pairs (vectorised, gathers; unsigned indices: no
+            # negative-index handling): which pairs touch
             for k in range(np.uint64(k0), np.uint64(k1)):
                 p = near[k]
                 i = pi[p]
@@ -617,10 +631,10 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
             erel = 0.0
             if update_history:
                 for q in range(k1 - 1, no - 1, -1):
-                    erel += _pair_contact(np.int64(scratch[q]), 0, pos, vel, omega, vel_h, omega_h,
-                                          radius, ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag,
-                                          law_tab, coef, dt, update_history, crow, cext, ridx, prel,
-                                          pstate, False)
+                    erel += _pair_contact(np.int64(scratch[q]), 0, pos, vel, omega, vel_h,
+                                          omega_h, radius, ptype, box, pi, pj, mred, hist_t,
+                                          hist_dmax, hflag, law_tab, coef, dt, update_history,
+                                          crow, cext, ridx, prel, pstate, False)
             # contacts of the touching pairs
             if all_linear:
                 tid = numba.get_thread_id()
@@ -633,9 +647,10 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
                                     pstate, hist_t, hflag)
             else:
                 for q in range(k0, nc):
-                    _pair_contact(np.int64(scratch[q]), q, pos, vel, omega, vel_h, omega_h, radius,
-                                  ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag, law_tab, coef,
-                                  dt, update_history, crow, cext, ridx, prel, pstate, True)
+                    _pair_contact(np.int64(scratch[q]), q, pos, vel, omega, vel_h, omega_h,
+                                  radius, ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag,
+                                  law_tab, coef, dt, update_history, crow, cext, ridx, prel,
+                                  pstate, True)
             # push the contacts (first run of blocks); largest overlap of the block
             ov = 0.0
             for q in range(np.uint64(k0), np.uint64(nc)):
@@ -989,7 +1004,7 @@ def pair_index(pi, pj, hist_t, inv_mass, n):
             np.zeros(1, dtype=np.uint8))
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)  # parallel callees (see hgrid._found_rows)
 def rebuild_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, old_pi, old_pj,
                   old_hist, old_dmax):
     """New neighbour list (uint32, sorted by (i, j)) with the contact history carried over."""
