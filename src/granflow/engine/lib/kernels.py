@@ -955,11 +955,10 @@ def particle_pass(
 # neighbour list rebuild: pairs, history transfer, pull index, reduced masses
 # --------------------------------------------------------------------------------------------
 @njit(cache=True)
-def transfer_history(old_i, old_j, old_t, old_dmax, new_i, new_j, n):
-    """Carry contact history from an old sorted pair list to a new one (merge walk, O(P))."""
+def transfer_history(old_i, old_j, old_t, old_dmax, new_i, new_j, n, new_t, new_dmax):
+    """Carry contact history from an old sorted pair list to a new one (merge walk, O(P));
+    ``new_t``, ``new_dmax``: zeros of the new list's length, filled where a pair persists."""
     npair = new_i.shape[0]
-    new_t = np.zeros((npair, 3))
-    new_dmax = np.zeros(npair)
     q = 0
     nold = old_i.shape[0]
     for p in range(npair):
@@ -1012,8 +1011,9 @@ def rebuild_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, old_pi
     # room for the partners of a particle in the single search pass (else a second pass)
     cap = max(DEFAULT_CAPACITY, 4 * (old_pi.shape[0] // max(n, 1)) + 8)
     pi, pj = hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, cap)
-    hist_t, hist_dmax = transfer_history(old_pi, old_pj, old_hist, old_dmax, pi, pj,
-                                         pos.shape[0])
+    hist_t = np.zeros((pi.shape[0], 3))
+    hist_dmax = np.zeros(pi.shape[0])
+    transfer_history(old_pi, old_pj, old_hist, old_dmax, pi, pj, n, hist_t, hist_dmax)
     return pi, pj, hist_t, hist_dmax
 
 
