@@ -9,6 +9,7 @@
 # Rules call the `granflow` command line (granflow simulate / prepare-base / campaign ...);
 # no physics lives in this workflow.  See README.md, "Campaign workflow".
 
+import json
 import os
 from pathlib import Path
 
@@ -30,6 +31,12 @@ SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 check_config(config, SCHEMA)
 validate(config, str(SCHEMA))
 
+# ACDD attribution (creator, institution, license, ...) of every output: passed to the jobs in
+# the environment, not as a parameter, so that changing it reruns no simulation
+from granflow.cfconventions import ATTRIBUTION_ENV
+
+os.environ[ATTRIBUTION_ENV] = json.dumps(config.get("metadata") or {}, sort_keys=True)
+
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/base.smk"
@@ -40,6 +47,16 @@ include: "workflow/rules/collect.smk"
 include: "workflow/rules/fit.smk"
 include: "workflow/rules/library.smk"
 include: "workflow/rules/report.smk"
+
+
+onstart:
+    # fit every rule's request to the partition before the first job is submitted: an
+    # impossible request fails here with a message instead of a job pending forever
+    if on_slurm():
+        for _rule in CL.DEFAULT_RESOURCES:
+            CLUSTER.fitted(_rule, True)
+        for _msg in CLUSTER.messages:
+            logger.warning(f"granflow cluster: {_msg}")
 
 
 rule all:

@@ -13,6 +13,8 @@ import pandas as pd
 import pytest
 import xarray as xr
 
+from granflow import cfconventions
+
 import granflow.closures as gc
 from granflow.closures import (compare_libraries, format_comparison, open_library,
                                write_library)
@@ -92,7 +94,7 @@ def test_write_read_round_trip_is_exact(lib_path):
     bare_lib.attrs, bare_expected.attrs = {}, {}
     xr.testing.assert_identical(bare_lib, bare_expected)
     for key in expected.attrs:
-        if key not in ("created", "content_hash"):
+        if key not in ("created", "content_hash", *cfconventions.CREATION_TIME_ATTRS):
             assert lib.attrs[key] == expected.attrs[key], key
     assert lib.attrs["content_hash"] == gc.content_hash(lib)
     assert lib.attrs["reductions_vs_paper"] == "T = 50 instead of 100; 10 heights"
@@ -104,8 +106,9 @@ def test_write_read_round_trip_is_exact(lib_path):
     assert lib["hstop_A_stderr"].sel({"lambda": 1.0}).item() == pytest.approx(0.03355, rel=1e-15)
     assert lib["segregation_Ps_ci95_low"].sel(sigma=0.5).item() == 6.9
     for name, var in lib.data_vars.items():
-        if not name.endswith("_message") and var.dims != ("run",):
-            assert "units" in var.attrs and "long_name" in var.attrs, name
+        assert "long_name" in var.attrs, name
+        if var.dtype.kind in "fiu" and var.dims != ("run",):  # numbers carry units
+            assert "units" in var.attrs, name
     pd.testing.assert_frame_equal(gc.campaign_table(lib), make_table(), check_dtype=False)
 
 
@@ -215,7 +218,7 @@ def test_failed_fit_is_stored_and_refused(tmp_path):
     sel = {"lambda": 0.5, "contact_law": "linear"}
     assert lib["hstop_ok"].sel(sel).item() == 0 and np.isnan(lib["hstop_A"].sel(sel).item())
     assert lib["hstop_message"].sel(sel).item() == "too few brackets"
-    with pytest.raises(ValueError, match="not fitted: too few brackets"):
+    with pytest.raises(ValueError, match="is failed: too few brackets"):
         gc.hstop(lib, 24.0, 0.5)
     assert lib["flow_rule_ok"].sel(sel).item() == 0  # combination never fitted
     with pytest.raises(ValueError, match="two hstop fits"):
@@ -259,3 +262,46 @@ def test_real_fits_through_library(tmp_path):
     np.testing.assert_allclose(gc.mu(lib, h, Fs, 1.0), np.tan(np.radians(theta)), atol=1e-10)
     assert lib["friction_error"].item() == fric.error > 0
     assert lib["hstop_delta1_stderr"].attrs["stderr_method"] == "bootstrap"
+
+
+def test_lam_may_be_omitted_only_for_a_one_lambda_library(lib_path, tmp_path):
+    lib = open_library(lib_path)
+    assert lib["lambda"].size > 1
+    with pytest.raises(ValueError, match=r"several lambda \[.*\]: pass lam="):
+        lib.closures.hstop(25.0)
+    one = lib.sel({"lambda": [1.0]})  # the same closures at lambda = 1 only
+    assert one.closures.hstop(25.0) == lib.closures.hstop(25.0, lam=1.0) == pytest.approx(
+        float(hstop_eq45(25.0, **HSTOP1)), rel=1e-14)
+    assert one.closures.alpha(24.0, 20.0) == lib.closures.alpha(24.0, 20.0, lam=1.0)
+
+
+def test_accessor_is_registered_by_import_granflow(lib_path):
+    """`import granflow` alone (a fresh interpreter) gives ds.closures, without warnings."""
+    import subprocess
+    import sys
+
+    code = ("import warnings; warnings.simplefilter('error')\n"
+            "import granflow, xarray as xr\n"
+            f"lib = xr.open_dataset({str(lib_path)!r})\n"
+            "print(float(lib.closures.K(24.0)))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert float(proc.stdout) == pytest.approx(float(gc.K(open_library(lib_path), 24.0)))
+
+
+def test_paper_reference_values_and_comparison():
+    """granflow.reference holds Weinhart et al. 2012 Table 1/2, Eq. 52-53 and T-eq. 29 as
+    printed; compare_with_paper marks agreement within 2 stderr or 5 %."""
+    from granflow.reference import compare_with_paper, paper_value
+
+    assert paper_value("hstop", "delta2", 1.0) == 32.780
+    assert paper_value("flow_rule", "gamma", 0.5) == -0.236
+    assert paper_value("alpha", "alpha_constant", 0.5) == 1.142
+    assert paper_value("stress_ratio", "d1") == 21.50 and paper_value("Ps_law", "k") == 5.21
+    assert math.isnan(paper_value("hstop", "A", 0.3))
+    f = _fit("stress_ratio", dict(d0=140.0, d1=21.9), stderr_frac=0.01, contact_law="linear")
+    rows = {r["parameter"]: r for r in compare_with_paper([f])}
+    assert rows["d0"]["agrees"] is False  # 8 off, stderr 1.4, 5 % = 6.6
+    assert rows["d1"]["agrees"] is True   # 0.4 off, 2 stderr = 0.44
+    assert rows["d1"]["z"] == pytest.approx((21.9 - 21.5) / 0.219)

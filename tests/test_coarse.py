@@ -147,6 +147,96 @@ def test_oblique_pairs_all_components(swap):
     assert ds.attrs["cg_n_upward_base_contacts"] == 1
 
 
+@pytest.mark.parametrize("base_line", ["contact_then_down", "through_contact"])
+@pytest.mark.parametrize("swap", [False, True])
+def test_base_paths_closed_form_and_zero_above(swap, base_line):
+    """Base paths for a downward and an *upward* branch vector (flow particle sitting below the
+    centre of the base particle it touches), every component against its closed form:
+    segment r_i -> contact point c, then straight down from c (``contact_then_down``, default):
+        f_a r_b / r_z (G(z - z_c) - G(z - z_i)) + [b = z] f_a (1 - G(z - z_c)),  r = r_i - c;
+    the paper's half-line along u = c - r_i (``through_contact``):
+        f_a u_b / u_z (1 - G(z - z_i)) for u_z < 0 and -f_a u_b / u_z G(z - z_i) for u_z > 0.
+    With the default every base-stress component is exactly 0 above max(z_i, z_c) + cutoff w;
+    the literal half-line leaves the upward contact's plateau all the way up."""
+    w, cut = 0.25, 4.0
+    p = np.array([[1.0, 1.0, 0.33], [0.4, 1.3, -0.21]])
+    base = np.array([[1.2, 0.9, -0.4], [0.1, 1.6, 0.25]])
+    c0 = p[0] + 0.5 * np.array([0.35, -0.2, -0.6]) / np.linalg.norm([0.35, -0.2, -0.6])
+    c1 = p[1] + 0.45 * np.array([-0.3, 0.5, 0.45]) / np.linalg.norm([-0.3, 0.5, 0.45])  # up
+    f0 = np.array([0.2, -0.1, 2.5])
+    f1 = np.array([0.4, 0.1, -0.9])
+    snap = snapshot(np.vstack([p, base]), fixed=[False, False, True, True],
+                    contacts=[(0, 2, f0, c0), (1, 3, f1, c1)])
+    if swap:
+        ci, cj = snap["contact_i"].copy(), snap["contact_j"].copy()
+        snap["contact_i"], snap["contact_j"] = cj, ci
+        snap["contact_force"] *= -1
+        snap["contact_rij"] *= -1
+        # contact point relative to the (stored) base particle: unchanged here (no periodic image)
+    ds = profiles([snap], width=w, cutoff=cut, dz=0.0137, base_line=base_line)
+    assert ds.attrs["cg_base_line"] == base_line
+    assert "contact point" in ds.attrs["cg_base_line_description"]
+    assert profiles([snap], width=w, cutoff=cut).attrs["cg_base_line"] == "contact_then_down"
+    assert ds.attrs["cg_n_upward_base_contacts"] == 1
+    z = ds.z.values
+    A = 6.0
+    comps = {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
+    for name, (a, b) in comps.items():
+        expected = np.zeros_like(z)
+        for pi, ci_, fi in ((p[0], c0, f0), (p[1], c1, f1)):
+            r = pi - ci_
+            if base_line == "through_contact":  # the paper's half-line along u = c - r_i
+                u = ci_ - pi
+                expected += fi[a] * u[b] / u[2] * ((1 - G_t(z - pi[2], w, cut)) if u[2] < 0
+                                                   else -G_t(z - pi[2], w, cut))
+                continue
+            expected += fi[a] * r[b] / r[2] * (G_t(z - ci_[2], w, cut) - G_t(z - pi[2], w, cut))
+            if b == 2:
+                expected += fi[a] * (1 - G_t(z - ci_[2], w, cut))
+        np.testing.assert_allclose(ds[f"stress_base_{name}"].values, expected / A, atol=1e-10,
+                                   rtol=0)
+        top = max(p[0, 2], p[1, 2], c0[2], c1[2]) + cut * w
+        above = ds[f"stress_base_{name}"].values[z > top + 1e-12]
+        if base_line == "contact_then_down":
+            assert np.all(above == 0.0), name
+        elif name in ("xx", "yy", "xy"):  # the upward contact's plateau, all the way up
+            assert np.all(np.abs(above) > 1e-3), name
+
+
+@pytest.mark.parametrize("base_line", ["contact_then_down", "down", "through_contact"])
+def test_momentum_balance_with_upward_branch_vectors(base_line):
+    """sigma_az(z) = sum_i F_i,a (1 - G(z - z_i)) / A + const for every base path, with half of
+    the flow-base branch vectors pointing up: the momentum balance is exact for each; the
+    constant is 0 for the two paths into the base (stress vanishes above the flow) and minus
+    the upward contacts' summed f_a (the plateau) for the literal half-line."""
+    rng = np.random.default_rng(11)
+    w, cut = 0.25, 4.0
+    snap = random_snapshot(rng, upward_fraction=0.5)
+    n = int((~snap["fixed"]).sum())
+    F = np.zeros((len(snap["pos"]), 3))
+    np.add.at(F, snap["contact_i"], snap["contact_force"])
+    np.add.at(F, snap["contact_j"], -snap["contact_force"])
+    ds = coarse_grain_profiles([snap], -3, 9, 0.023, width=w, Lx=4.0, Ly=3.0, cutoff=cut,
+                               base_line=base_line)
+    z = ds.z.values
+    zi = snap["pos"][:n, 2]
+    Gm = G_t(z[None, :] - zi[:, None], w, cut)
+    base = snap["fixed"][snap["contact_j"]]
+    up = base & (snap["contact_point"][:, 2] > snap["pos"][snap["contact_i"], 2])
+    assert up.sum() >= 5
+    for a, c in enumerate("xyz"):
+        expected = (F[:n, a, None] * (1 - Gm)).sum(axis=0) / 12.0
+        if base_line == "through_contact":  # exact too, but offset by the upward plateau
+            expected = expected - snap["contact_force"][up, a].sum() / 12.0
+        got = ds[f"stress_contact_{c}z"].values + ds[f"stress_base_{c}z"].values
+        np.testing.assert_allclose(got, expected, atol=1e-10, rtol=0)
+    if base_line != "through_contact":
+        top = max(snap["pos"][snap["contact_i"][base], 2].max(),
+                  snap["contact_point"][base, 2].max()) + cut * w
+        for name in ("xx", "yy", "zz", "xy", "xz", "yz"):
+            assert np.all(ds[f"stress_base_{name}"].values[z > top + 1e-12] == 0.0)
+
+
 def test_horizontal_pair_midpoint():
     """A horizontal flow-flow pair spreads f_a r_b g(z - z_i) (segment at constant z)."""
     w, cut = 0.25, 4.0
@@ -160,7 +250,7 @@ def test_horizontal_pair_midpoint():
 
 
 # ---------------------------------------------------------------- conservation identities
-def random_snapshot(rng, n=60, n_base=20, Lx=4.0, Ly=3.0, tilt=True):
+def random_snapshot(rng, n=60, n_base=20, Lx=4.0, Ly=3.0, tilt=True, upward_fraction=0.0):
     pos = np.column_stack([rng.uniform(0, Lx, n), rng.uniform(0, Ly, n), rng.uniform(0.3, 5, n)])
     base = np.column_stack([rng.uniform(0, Lx, n_base), rng.uniform(0, Ly, n_base),
                             rng.uniform(-0.8, 0.0, n_base)])
@@ -172,7 +262,9 @@ def random_snapshot(rng, n=60, n_base=20, Lx=4.0, Ly=3.0, tilt=True):
     for i in rng.choice(n, 15, replace=False):
         k = n + rng.integers(n_base)
         u = allpos[k] - allpos[i]
-        u[2] = -abs(u[2]) - 0.1  # downward half-lines
+        u[2] = -abs(u[2]) - 0.1  # downward half-lines ...
+        if rng.uniform() < upward_fraction:
+            u[2] = -u[2]  # ... or a flow particle below the contact point
         contacts.append((i, k, rng.normal(size=3), allpos[i] + 0.5 * u / np.linalg.norm(u)))
     contacts.append((0, 1, rng.normal(size=3), None))
     allpos[1, 2] = allpos[0, 2]  # one exactly horizontal pair
@@ -367,7 +459,9 @@ def test_state_dict_round_trip(tmp_path):
 
     with xr.open_dataset(tmp_path / "p.nc") as back:
         np.testing.assert_array_equal(back.stress_zz.values, dc.stress_zz.values)
-        assert back.stress_zz.attrs["units"] == "m g d-2"
+        assert back.stress_zz.attrs["units"] == "1"  # nondimensional (UDUNITS)
+        assert back.stress_zz.attrs["nondimensional_unit"] == \
+            "particle_mass*gravity*particle_diameter**-2"  # m g / d^2
         assert back.attrs["param_theta"] == 24.0
 
 

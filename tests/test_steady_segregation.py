@@ -124,7 +124,8 @@ def test_bidisperse_run_records_the_indicator_and_the_segregation_verdict(tmp_pa
     with xr.open_dataset(out / "series.nc") as ds:
         s = ds["segregation_indicator"].values
         ts = ds["segregation_time"].values
-        assert ds["segregation_indicator"].attrs["units"] == "d"
+        assert ds["segregation_indicator"].attrs["units"] == "1"  # a length, in d
+        assert ds["segregation_indicator"].attrs["nondimensional_unit"] == "particle_diameter"
         state = ds.attrs["segregation_state"]
     assert state == ("steady" if seg["steady"] else "drifting")
     assert np.all(np.diff(ts) > 0.5) and ts[-1] <= res["t_final"] + 1e-9

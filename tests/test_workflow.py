@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -61,7 +62,11 @@ def test_tiny_campaign_end_to_end(tiny):
     res = work / RESULTS
     lib = open_library(res / "closures.nc")  # verifies the content hash
     assert lib.attrs["library_name"] == "granflow-tiny"
-    assert "6 x 4 box" in lib.attrs["reductions_vs_paper"]
+    # generated from the configuration and the fits, not written by hand
+    red = lib.attrs["reductions_vs_paper"]
+    assert "chute box 6 x 4 (paper 20 x 10)" in red and "collision time t_c 0.02" in red
+    assert "flow_rule: flow rule from steady runs" in red
+    assert "6 x 4 box" in lib.attrs["library_note"]  # the config's free-text note
     kinds = set(lib.attrs["kinds"].split())
     assert {"hstop", "flow_rule", "friction", "alpha", "density", "stress_ratio"} <= kinds
     manifest = json.loads((res / "closures.json").read_text())
@@ -78,6 +83,16 @@ def test_tiny_campaign_end_to_end(tiny):
     state = json.loads(sorted((res / "hstop" / "linear" / "lambda~1").glob("step~*.json"),
                               key=lambda p: int(p.stem.split("~")[1]))[-1].read_text())
     assert state["search"]["next"] is None and len(state["search"]["runs"]) == 3
+    # the bisection chain at H = 2: two bracket runs, in the table, stopped as soon as decided
+    steps = sorted((res / "hstop" / "linear" / "lambda~1" / "bisect" / "H~2" / "rep~0")
+                   .glob("step~*.json"),
+                   key=lambda p: int(p.stem.split("~")[1]))
+    last = json.loads(steps[-1].read_text())
+    assert last["bisection"]["next"] is None and len(last["bisection"]["runs"]) == 2
+    for t, st in last["bisection"]["runs"]:
+        run = f"bracket/linear/lambda~1/theta~{t:g}/H~2"
+        assert run in runs and st in ("arrested", "flowing", "undecided")
+        assert table.loc[table["run"] == run, "state"].item() == st
     for t, h, _ in state["search"]["runs"]:
         assert f"chute/linear/lambda~1/theta~{t:g}/H~{h:g}" in runs
     # a run directory has the Paramspace layout and every output of the job contract
@@ -91,14 +106,14 @@ def test_tiny_campaign_end_to_end(tiny):
         ["bases/lambda~1/box~6x4/base.npy"]
     # the executed report: every figure, as inline PNG and as files
     html = (res / "report.html").read_text()
-    for title in ("Flow-state map", "Flow rule", "Depth profiles", "Bulk density",
-                  "Segregation", "Snapshot", "Closure table"):
+    for title in ("What this library knows", "Flow-state map", "Flow rule", "Depth profiles",
+                  "Bulk density", "Segregation", "Snapshot", "Held-out check", "Closure table"):
         assert title in html, title
     assert html.count("data:image/png;base64,") >= 6
     assert "Traceback" not in html
     figs = sorted(p.name for p in (res / "figures").glob("*.png"))
     assert figs == ["density_K_alpha.png", "flow_rule.png", "flow_state_map.png",
-                    "profiles.png", "segregation.png", "snapshot.png"]
+                    "heldout_z.png", "profiles.png", "segregation.png", "snapshot.png"]
     assert wall < 600
 
 
@@ -112,6 +127,32 @@ def test_rerun_of_library_step_reuses_the_version(tiny):
     assert manifest["reused"] is True and manifest["version"] == 1
     assert library_versions(res / "library", "granflow-tiny") == [1]
     assert open_library(res / "closures.nc").attrs["content_hash"] == before
+
+
+def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
+    """The README's dry run (`snakemake -n --configfile config/test-tiny.yaml`) plans every
+    stage, including `collect`, whose input waits on the unfinished hstop checkpoint chain."""
+    proc = _check(snakemake(tmp_path, "-n", timeout=300))
+    out = proc.stdout + proc.stderr
+    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    # 3 grid + 3 segregation runs, the search's first point is a grid point: 6 simulations
+    assert table.get("simulate") == "6" and table.get("row") == "6", out[-3000:]
+    for rule in ("base", "hstop_step", "collect", "fit", "library", "report"):
+        assert table.get(rule) == "1", (rule, out[-3000:])
+    assert "This was a dry-run" in out
+    assert not (tmp_path / "results").exists()
+
+
+def test_snakemake_report_of_the_tiny_campaign(tiny):
+    """The README's `snakemake --report results/report.zip`, for the finished tiny campaign."""
+    import zipfile
+
+    work, _ = tiny
+    _check(snakemake(work, "--report", "results/report.zip", timeout=600))
+    with zipfile.ZipFile(work / "results" / "report.zip") as z:
+        names = z.namelist()
+    assert any(n.endswith("report.html") for n in names), names[:20]
+    assert any(n.endswith("closures.nc") for n in names), names[:20]
 
 
 def test_lint_is_clean():
@@ -137,6 +178,13 @@ BAD_CONFIGS = {
     "unknown_law": ("campaigns: {chute: {enabled: true, contact_law: [hooke]}}",
                     "campaigns.chute.contact_law[0] = 'hooke'", "linear, hertz, plastic"),
     "unknown_key": ("numerics: {t_endd: 100.0}", "unknown key(s) ['t_endd']", "allowed keys"),
+    "averaging_longer_than_run": ("numerics: {t_end: 100.0, averaging_time: 150.0}",
+                                  "numerics.averaging_time = 150.0 is longer than the run, "
+                                  "numerics.t_end = 100.0", "at most t_end"),
+    "one_size_ratio": ("campaigns: {segregation: {enabled: true, sigma: [0.5, 1.0]}}",
+                       "campaigns.segregation.sigma = [0.5, 1.0]", "at least 3 distinct size"),
+    "slurm_over_limit": ("cluster: {over_limit: sometimes}", "cluster.over_limit = 'sometimes'",
+                         "['cap', 'refuse']"),
     "unknown_nested_key": ("campaigns: {chute: {enabled: true, hstop_search: {enabled: false, "
                            "H00: 3}}}", "unknown key(s) ['H00']", "allowed keys"),
 }

@@ -5,6 +5,13 @@ Commands
 simulate      run one chute from a parameter file (YAML) into an output folder (resumable)
 prepare-base  prepare and freeze a rough base for one lambda (reused by every run over it)
 demo          a short chute demonstration run (engine smoke demo for the quick start)
+campaign      the campaign workflow's steps (check-config, expand, run-params, row, collect,
+              fit, library, report, hstop-step; Snakemake calls them, `granflow campaign -h`)
+
+A running ``granflow simulate`` names itself ``granflow-sim`` (process name, Linux) and writes
+its pid to ``<out>/simulate.pid`` while it runs, so runs can be stopped cleanly with
+``pkill -x granflow-sim`` (all) or ``kill $(cat <out>/simulate.pid)`` (one); a stopped run
+resumes from its checkpoint when started again.
 """
 
 from __future__ import annotations
@@ -19,11 +26,56 @@ def _setup_logging(verbose: bool):
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")
 
 
+#: process name of a running `granflow simulate` (at most 15 characters: Linux comm)
+PROCESS_NAME = "granflow-sim"
+
+
+def set_process_name(name: str) -> bool:
+    """Set this process's name (``/proc/<pid>/comm``, what ``pkill -x``/``top`` show); Linux
+    only, False elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(15, ctypes.c_char_p(name.encode()[:15]), 0, 0, 0) == 0  # PR_SET_NAME
+    except (OSError, AttributeError):
+        return False
+
+
 def cmd_simulate(args):
+    import os
+    import signal
+    from pathlib import Path
+
+    from .provenance import atomic_write_bytes
     from .simulate import load_params, simulate
 
     params = load_params(args.params)
-    summary = simulate(params, args.out, base_file=args.base, threads=args.threads)
+    set_process_name(PROCESS_NAME)
+    pid_file = Path(args.out) / "simulate.pid"
+    atomic_write_bytes(pid_file, f"{os.getpid()}\n".encode())
+    def remove_pid_file():
+        try:
+            if pid_file.read_text().strip() == str(os.getpid()):
+                pid_file.unlink()
+        except OSError:
+            pass
+
+    def stop(signum, frame):
+        # SIGTERM/SIGINT (kill, pkill, Ctrl-C, Slurm's scancel): remove the pid file, then die
+        # of the signal as before; the last checkpoint (written atomically) stays for the rerun
+        remove_pid_file()
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, stop)
+    try:
+        summary = simulate(params, args.out, base_file=args.base, threads=args.threads)
+    finally:
+        remove_pid_file()
     print(f"{args.out}: {summary['flow_state']} ({summary['stop_reason']}) at t = {summary['t_final']:.4g} "
           f"({summary['n_flow']} flow particles, {summary['wall_s']:.1f} s wall)")
 

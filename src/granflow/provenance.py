@@ -103,12 +103,20 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 
 def atomic_to_netcdf(dataset, path: str | os.PathLike, **kwargs) -> None:
-    """Write an xarray Dataset to netCDF atomically (temporary file, then rename)."""
+    """Write an xarray Dataset to netCDF atomically (temporary file, then rename).
+
+    The CF encoding of :func:`granflow.cfconventions.encoding` (no _FillValue on coordinates,
+    int32 instead of int64) is applied under any ``encoding`` given."""
+    from .cfconventions import encoding as cf_encoding
+
+    enc = cf_encoding(dataset)
+    for name, e in (kwargs.pop("encoding", None) or {}).items():
+        enc[name] = {**enc.get(name, {}), **e}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
-        dataset.to_netcdf(tmp, **kwargs)
+        dataset.to_netcdf(tmp, encoding=enc, **kwargs)
         os.replace(tmp, path)
     finally:
         if tmp.exists():

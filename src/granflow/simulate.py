@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import cfconventions
 from . import units as U
 from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_base
 from .engine.run import ChuteRun
@@ -61,6 +62,8 @@ PARAMETERS = {
     "sample_interval": "time between samples (default t_c/2)",
     "checkpoint_every_s": "wall-clock seconds between checkpoints",
     "early_stop": "stop when arrested / accelerating / steady long enough (default true)",
+    "stop_when_flowing": "stop as soon as the run is decisively not arresting, flow state "
+                         "'flowing' (hstop brackets; default false)",
     "averaging_time": "averaging time after the steady onset, > 0 (paper 100)",
     "check_every": "time between steady-state checks, > 0",
     "min_accelerating_time": "earliest time an accelerating stop is allowed (default t_end/4)",
@@ -68,6 +71,9 @@ PARAMETERS = {
     "cg_dz": "z spacing of the depth profiles, > 0",
     "cg_window": "time-window length for profile spreads, > 0",
     "cg_every": "coarse-grain every n-th sample (default 1: every t_c/2)",
+    "cg_base_line": "where a flow-base contact's stress goes: contact_then_down (default) | "
+                    "down | through_contact (the paper's literal half-line; see "
+                    "granflow.coarse.profiles.BASE_LINES)",
 }
 
 
@@ -84,7 +90,8 @@ def validate_params(params: dict) -> dict:
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
              averaging_time=100.0, check_every=10.0, min_accelerating_time=None, cg_width=0.25,
-             cg_dz=0.05, cg_window=10.0, cg_every=1)
+             cg_dz=0.05, cg_window=10.0, cg_every=1, cg_base_line="contact_then_down",
+             stop_when_flowing=False)
     p.update(params)
     for key in ("base_t_c", "base_e", "base_mu_c"):
         p.setdefault(key, None)
@@ -106,6 +113,12 @@ def validate_params(params: dict) -> dict:
     check_range("cg_dz", p["cg_dz"], 0.0, 10.0, lo_open=True)
     check_range("cg_window", p["cg_window"], 0.0, 1e7, lo_open=True)
     check_range("cg_every", p["cg_every"], 1, 1e6)
+    from .coarse.profiles import BASE_LINES
+    if p["cg_base_line"] not in BASE_LINES:
+        raise ValueError(f"cg_base_line = {p['cg_base_line']!r} is unknown: allowed "
+                         f"{sorted(BASE_LINES)}")
+    if not isinstance(p["stop_when_flowing"], bool):
+        raise ValueError(f"stop_when_flowing = {p['stop_when_flowing']!r} must be true or false")
     if not isinstance(p["early_stop"], bool):
         raise ValueError(f"early_stop = {p['early_stop']!r} must be true or false")
     cfg = chute_config(p)
@@ -172,17 +185,19 @@ def series_dataset(arrays: dict, attrs: dict):
     t = arrays["time"]
     ratio = np.divide(arrays["e_kin"], arrays["e_ela"], out=np.full_like(t, np.inf),
                       where=arrays["e_ela"] > 0)
+    # the coordinate is ``t``, not ``time``: CF tools take a variable named time for a calendar
+    # time axis ("<unit> since <epoch>"), which a nondimensional simulated time is not
     ds = xr.Dataset(
         {
-            "e_kin": ("time", arrays["e_kin"]),
-            "e_ela": ("time", arrays["e_ela"]),
-            "e_grav": ("time", arrays["e_grav"]),
-            "energy_ratio": ("time", ratio),
-            "u_mean": ("time", arrays["u_mean"]),
+            "e_kin": ("t", arrays["e_kin"]),
+            "e_ela": ("t", arrays["e_ela"]),
+            "e_grav": ("t", arrays["e_grav"]),
+            "energy_ratio": ("t", ratio),
+            "u_mean": ("t", arrays["u_mean"]),
         },
-        coords={"time": t},
+        coords={"t": t},
     )
-    ds["time"].attrs = U.cf(U.TIME, "simulated time")
+    ds["t"].attrs = U.cf(U.TIME, "simulated time t (not a calendar time)")
     ds["e_kin"].attrs = U.cf(U.ENERGY, "kinetic energy (translational + rotational) of the flow")
     ds["e_ela"].attrs = U.cf(U.ENERGY, "elastic energy stored in contacts")
     ds["e_grav"].attrs = U.cf(U.ENERGY, "slope-normal gravitational energy sum m g cos(theta) z")
@@ -204,12 +219,12 @@ def _observers(p: dict, cfg: ChuteConfig, series, min_onset: float = 0.0):
     z_top = 2.0 * p["H"] + 10.0 * float(d_flow.max(initial=1.0))
     acc = DepthProfileAccumulator(-2.0 * max(p["lam"], 1.0), z_top, p["cg_dz"], width=p["cg_width"],
                                   Lx=p["Lx"], Ly=p["Ly"], n_species=n_species,
-                                  window_length=p["cg_window"])
+                                  window_length=p["cg_window"], base_line=p["cg_base_line"])
     profile_obs = ProfileObserver(acc, every=int(p["cg_every"]))
     monitor = SteadyStateMonitor(t_cap=p["t_end"], averaging_time=p["averaging_time"],
                                  check_every=p["check_every"],
                                  min_accelerating_time=p["min_accelerating_time"],
-                                 min_onset=min_onset)
+                                 min_onset=min_onset, stop_when_flowing=p["stop_when_flowing"])
     return profile_obs, MonitorObserver(monitor, series)
 
 
@@ -228,11 +243,13 @@ def startup_time(system, theta_deg: float) -> float:
 
 
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
-             progress=None) -> dict:
+             progress=None, extra_observers=()) -> dict:
     """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
 
-    Returns a summary dict (flow state, stop reason, final time, particle count, wall time, and
-    the ChuteRun under ``run``).
+    ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
+    run, after the built-in ones (e.g. a second :class:`~granflow.observers.ProfileObserver`
+    with another coarse-graining choice).  Returns a summary dict (flow state, stop reason,
+    final time, particle count, wall time, and the ChuteRun under ``run``).
     """
     import json
     import time as _time
@@ -284,6 +301,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                                min_onset=monitor_obs.monitor.min_onset),
             small_type=0, energy=monitor_obs if p["early_stop"] else None)
         run.observers.append(seg_obs)
+    run.observers.extend(extra_observers)
     run.try_resume()
     run.run()
 
@@ -333,6 +351,20 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
             k: v for k, v in seg.items() if k not in ("time", "value")},
         "provenance": {k: attrs[k] for k in ("granflow_version", "git_commit", "config_hash")},
     }
+    where = f"theta = {p['theta']:g} deg, H = {p['H']:g}, lambda = {p['lam']:g}" + (
+        f", sigma = {p['sigma']:g}, phi0 = {p['phi0']:g}" if p.get("phi0", 1.0) < 1 else "")
+    cfconventions.apply(
+        ds, kind="series", config=p, title=f"granflow chute run time series ({where})",
+        summary=("Energy time series of one periodic-chute discrete particle simulation "
+                 f"({where}) and its flow-state classification ({final['flow_state']}; "
+                 "Weinhart et al. 2012 §6)" + ("; small-particle segregation indicator"
+                                               if seg is not None else "") + "."))
+    cfconventions.apply(
+        profiles, kind="profiles", config=p, title=f"granflow chute run depth profiles ({where})",
+        summary=("Coarse-grained depth profiles (density, velocity, stress tensor with contact, "
+                 "kinetic and base-contact parts; Weinhart et al. 2012 §3) of one periodic-chute "
+                 f"discrete particle simulation ({where}), averaged from t = {t_from:g}, with "
+                 "per-time-window values for spreads."))
     atomic_to_netcdf(ds, out_dir / "series.nc")
     atomic_to_netcdf(profiles, out_dir / "profiles.nc")
     run.system.save(out_dir / "final_state.npz")

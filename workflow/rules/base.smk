@@ -14,8 +14,7 @@ rule base:
         seed=G.base_settings(config)["seed"],
     threads: 1
     resources:
-        runtime=30,
-        mem_mb=1000,
+        **cluster_resources("base"),
     conda:
         CONDA_ENV
     shell:

@@ -19,8 +19,7 @@ rule row:
         window=SEG_WINDOW,
     threads: 1
     resources:
-        runtime=10,
-        mem_mb=1000,
+        **cluster_resources("row"),
     conda:
         CONDA_ENV
     shell:

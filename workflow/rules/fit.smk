@@ -23,8 +23,7 @@ rule fit:
         n_bootstrap=LIBRARY.get("n_bootstrap", 200),
     threads: 1
     resources:
-        runtime=30,
-        mem_mb=2000,
+        **cluster_resources("fit"),
     conda:
         CONDA_ENV
     shell:

@@ -24,18 +24,18 @@ rule library:
         gf=GRANFLOW,
         dir=LIBRARY_DIR,
         name=LIBRARY["name"],
-        reductions=LIBRARY.get("reductions", ""),
+        note=(f"--reductions {shlex.quote(LIBRARY['reductions'])}"
+              if LIBRARY.get("reductions") else ""),
         campaign=NAME,
-        config=json.dumps(config, sort_keys=True),
+        config=CONFIG_JSON,
     threads: 1
     resources:
-        runtime=10,
-        mem_mb=2000,
+        **cluster_resources("library"),
     conda:
         CONDA_ENV
     shell:
         "{params.gf} campaign library --fits {input.fits} --table {input.table}"
         " --excluded {input.excluded}"
-        " --dir {params.dir} --name {params.name} --reductions {params.reductions:q}"
+        " --dir {params.dir} --name {params.name} {params.note}"
         " --campaign {params.campaign} --config-json {params.config:q}"
         " --out {output.nc} --manifest {output.manifest} > {log} 2>&1"

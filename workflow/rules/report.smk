@@ -33,8 +33,7 @@ rule report:
         timeout=REPORT_TIMEOUT,
     threads: 1
     resources:
-        runtime=30,
-        mem_mb=4000,
+        **cluster_resources("report"),
     conda:
         CONDA_ENV
     shell:

@@ -24,10 +24,9 @@ rule simulate:
         gf=GRANFLOW,
         values=run_params_json,
         out=dir_of,
-    threads: THREADS
+    threads: cluster_threads("simulate")
     resources:
-        runtime=120,
-        mem_mb=2000,
+        **cluster_resources("simulate"),
     conda:
         CONDA_ENV
     shell:

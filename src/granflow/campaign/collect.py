@@ -10,10 +10,15 @@ time units (mean profile; ``Ps_std`` = spread of the per-window fits).  :func:`c
 concatenates rows into the table (netCDF with CF attributes + CSV).
 
 Runs whose state is ``undecided`` (the cap was reached before the classifier could decide)
-cannot enter a campaign table (its ``state`` column admits only the five flow states): they are
-listed, with all their measured columns and the reason, in ``excluded_runs.csv`` instead.  The
-hstop fit still uses them as *flowing* runs (the paper's binary arrested/flowing rule, §6, see
-:mod:`granflow.campaign.fits`); no other fit does.
+enter the table with that state: the hstop fit counts them as *flowing* (the paper's binary
+arrested/flowing rule, §6), the fits that need steady flow leave them out, and every closure
+says so (its ``selection``).  A run whose summary has no known state at all is listed, with
+the reason, in ``excluded_runs.csv`` instead.
+
+Per-run uncertainties: ``<col>_sem`` is the standard error of the run's mean from its
+decorrelated time windows (:func:`granflow.steady.timeseries.standard_error_of_mean`); for Ps it
+comes from the per-window fits of T-eq. (28), not from the covariance of the (correlated)
+coarse-grained profile points.
 """
 
 from __future__ import annotations
@@ -37,7 +42,8 @@ _AVERAGES = {"flow_height": "h", "u_bar": "u_bar", "froude": "F", "alpha": "alph
              "rho_bar": "rho_bar", "rho_c": "rho_c"}
 #: extra (non-schema) columns every row carries
 EXTRA_COLUMNS = ("kind", "run", "mu_bar", "t_final", "steady_start", "stop_reason", "n_flow",
-                 "state_confidence")
+                 "state_confidence", "segregation_state", "replicate")
+_STRING_EXTRAS = ("kind", "run", "stop_reason", "segregation_state")
 EXTRA_ATTRS = {
     "kind": {"long_name": "campaign the run belongs to (chute or segregation)"},
     "run": {"long_name": "run directory relative to the campaign results folder"},
@@ -47,6 +53,9 @@ EXTRA_ATTRS = {
     "stop_reason": {"long_name": "why the run stopped"},
     "n_flow": U.cf(U.DIMENSIONLESS, "number of flow particles"),
     "state_confidence": U.cf(U.DIMENSIONLESS, "confidence of the flow-state classification"),
+    "segregation_state": {"long_name": "segregated state of a bidisperse run (steady, drifting; "
+                                       "empty for monodisperse runs)"},
+    "replicate": U.cf(U.DIMENSIONLESS, "replicate index k of the run point (insertion seed + k)"),
 }
 
 
@@ -90,7 +99,10 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
     scaled to [0, 1] over [b, s] of Eq. (42) computed from the same windows' sigma_zz.  The
     asymmetric-flux profile (seed 001 Eq. 2.9) is fitted to the same profile for comparison
     (``extra``: Ps, kappa, rms residual and AIC of both models).
-    Returns (FitResult tagged with sigma/contact_law, Ps spread over windows, profile dict).
+    Returns (FitResult tagged with sigma/contact_law, Ps spread over windows, profile dict);
+    the fit's ``stderr`` of Ps is replaced by the standard error of the mean of the per-window
+    fits (decorrelated windows; ``stderr_method`` says so) -- the covariance of the correlated
+    profile points understates it 5-10 times -- and ``extra["Ps_std"]`` holds their spread.
     """
     import xarray as xr
 
@@ -125,6 +137,16 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
         if r.ok:
             per.append(r.params["Ps"])
     spread = float(np.std(per, ddof=1)) if len(per) > 1 else math.nan
+    from ..steady.timeseries import standard_error_of_mean
+
+    sem = standard_error_of_mean(per) if len(per) > 1 else math.nan
+    if fit.ok:
+        fit.extra["Ps_covariance_stderr"] = fit.stderr["Ps"]
+        fit.extra["Ps_std"] = spread
+        fit.extra["n_windows"] = len(per)
+        fit = fit.replace(stderr={"Ps": sem},
+                          stderr_method=("standard error of the mean of per-window fits "
+                                         f"({len(per)} windows, decorrelated)"))
     profile = {"zeta": zeta.tolist(), "phi": phi[inside].tolist(), "base": b, "surface": s,
                "t_from": float(t_from), "n_windows": int(len(used)),
                "segregation_state": fit.extra["segregation_state"]}
@@ -143,19 +165,30 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
     for src, col in _AVERAGES.items():
         row[col] = _f(avg.get(src))
         row[f"{col}_std"] = _f(avg.get(f"{src}_std"))
-    row.update(Ps=math.nan, Ps_std=math.nan, phi0=math.nan, phi0_std=math.nan)
+        row[f"{col}_sem"] = _f(avg.get(f"{src}_sem"))
+    row.update(Ps=math.nan, Ps_std=math.nan, Ps_sem=math.nan, phi0=math.nan, phi0_std=math.nan,
+               phi0_sem=math.nan)
+    seg_state = (summ.get("segregation") or {}).get("steady")
     row.update(kind=point.kind, run=point.path, mu_bar=_f(avg.get("mu_bar")),
                t_final=_f(summ.get("t_final")), steady_start=_f(summ.get("steady_start")),
                stop_reason=str(summ.get("stop_reason", "")).split(":")[0],
-               n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")))
+               n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")),
+               segregation_state="" if seg_state is None else
+               ("steady" if seg_state else "drifting"), replicate=float(point.replicate))
     out = {"row": row, "excluded": None, "segregation_fit": None, "segregation_profile": None}
     if row["state"] not in FLOW_STATES:
         out["excluded"] = (f"flow state {row['state']!r} (not one of {FLOW_STATES}): "
                            f"{summ.get('classification', '')}")
     if point.kind == "segregation":
         fit, spread, profile = segregation_fit(run_dir, point.sigma, point.law, segregation_window)
+        fit.extra["flow_state"] = row["state"]
+        fit = fit.replace(runs_used=(point.path,),
+                          selection=f"phi(z) of run {point.path} from t = {profile['t_from']:.6g}"
+                                    f" ({profile['n_windows']} windows); flow {row['state']}, "
+                                    f"segregated state {fit.extra.get('segregation_state')}")
         row["Ps"] = fit.params["Ps"]
         row["Ps_std"] = spread
+        row["Ps_sem"] = fit.stderr["Ps"]
         row["phi0"] = _f(fit.extra.get("phi0"))
         out["segregation_fit"] = fit_to_dict(fit)
         out["segregation_profile"] = profile
@@ -181,21 +214,44 @@ def _sort_key(r):
     return (row["kind"], row["contact_law"], row["lam"], row["sigma"], row["theta"], row["H"])
 
 
-def table_dataset(table: pd.DataFrame, attrs=None):
-    """The campaign table as an xarray Dataset on dim ``row`` with CF attributes."""
+#: netCDF variable names of columns whose names differ only by case from another column
+#: (CF 2.3: names must not be distinguished by case alone); ``campaign_column`` keeps the column
+NETCDF_NAMES = {"H": "H_fill"}
+
+
+def table_dataset(table: pd.DataFrame, attrs=None, config=None):
+    """The campaign table as an xarray Dataset on dim ``row`` with CF/ACDD attributes and
+    provenance (git commit, created, units system, config hash of ``config``)."""
     import xarray as xr
+
+    from .. import cfconventions
+    from ..provenance import provenance_attrs
 
     data = {}
     for col in table.columns:
         a = dict(COLUMN_ATTRS.get(col) or EXTRA_ATTRS.get(col) or {"long_name": col})
+        a["campaign_column"] = str(col)
+        name = NETCDF_NAMES.get(col, col)
         if (col in STRING_COLUMNS or not pd.api.types.is_numeric_dtype(table[col])
                 or pd.api.types.is_bool_dtype(table[col])):
-            data[col] = ("row", np.array([str(v) for v in table[col]], dtype=object), a)
+            data[name] = ("row", np.array([str(v) for v in table[col]], dtype=object), a)
         else:
-            data[col] = ("row", table[col].to_numpy(dtype=float), a)
-    ds = xr.Dataset(data, coords={"row": np.arange(len(table))})
-    ds["row"].attrs = {"long_name": "campaign table row"}
-    ds.attrs.update(attrs or {})
+            data[name] = ("row", table[col].to_numpy(dtype=float), a)
+    ds = xr.Dataset(data, coords={"row": np.arange(len(table), dtype=np.int32)})
+    ds["row"].attrs = {"long_name": "campaign table row", "units": "1"}
+    glob = provenance_attrs(config if config is not None else {})
+    glob.update(attrs or {})
+    ds.attrs.update(glob)
+    campaign = glob.get("campaign", "")
+    cfconventions.apply(
+        ds, kind="campaign_table", config=config,
+        title=glob.get("title") or f"granflow campaign table {campaign}".strip(),
+        summary=(f"One row per chute run of the granflow campaign {campaign}: inclination, "
+                 "filling height, basal roughness, size ratio, contact law, flow state, depth "
+                 "averages (flow height, velocity, Froude number, shape factor alpha, stress "
+                 "ratio K, densities) with time-window spreads and, for bidisperse runs, the "
+                 "segregation Peclet number Ps (Weinhart et al. 2012; Thornton et al.)."),
+        identifier=f"granflow-campaign-table-{campaign}-{glob.get('config_hash', '')}".rstrip("-"))
     return ds
 
 
@@ -208,15 +264,17 @@ def read_table(path) -> pd.DataFrame:
         import xarray as xr
 
         with xr.open_dataset(path) as ds:
+            ds = ds.rename({n: v.attrs["campaign_column"] for n, v in ds.data_vars.items()
+                            if v.attrs.get("campaign_column", n) != n})
             df = ds.to_dataframe().reset_index(drop=True)
     for col in df.columns:
-        if col in STRING_COLUMNS or col in ("kind", "run", "stop_reason"):
-            df[col] = df[col].astype(str).astype(object)
+        if col in STRING_COLUMNS or col in _STRING_EXTRAS:
+            df[col] = df[col].fillna("").astype(str).astype(object)
     return campaign_table_from_records(df.to_dict("records"))
 
 
 def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation=None,
-                  attrs=None) -> pd.DataFrame:
+                  attrs=None, config=None) -> pd.DataFrame:
     """Concatenate row files into the campaign table; write netCDF, CSV, excluded runs and the
     per-run segregation fits (JSON list, input of the library's ``segregation`` kind)."""
     results = sorted(read_rows(row_files), key=_sort_key)
@@ -235,17 +293,18 @@ def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation
                         "profile": r["segregation_profile"]})
     cols = list(dict.fromkeys(
         ["theta", "H", "lam", "sigma", "contact_law", "state", *MEASURED_COLUMNS,
-         *(f"{c}_std" for c in MEASURED_COLUMNS), *EXTRA_COLUMNS]))
+         *(f"{c}_std" for c in MEASURED_COLUMNS), *(f"{c}_sem" for c in MEASURED_COLUMNS),
+         *EXTRA_COLUMNS]))
     if kept:
         table = campaign_table_from_records(kept)
     else:
         table = campaign_table_from_records([])
         for c in EXTRA_COLUMNS:
-            table[c] = pd.Series([], dtype=object if c in ("kind", "run", "stop_reason") else float)
+            table[c] = pd.Series([], dtype=object if c in _STRING_EXTRAS else float)
     table = table[[c for c in cols if c in table.columns]]
     Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_csv, table.to_csv(index=False, float_format="%.17g").encode())
-    atomic_to_netcdf(table_dataset(table, attrs), out_nc)
+    atomic_to_netcdf(table_dataset(table, attrs, config), out_nc)
     if out_excluded is not None:
         ex_cols = ["run", "reason", "theta", "H", "lam", "sigma", "contact_law", "state",
                    *[c for c in cols if c not in ("run", "theta", "H", "lam", "sigma",

@@ -7,7 +7,8 @@ check-config   validate campaign configuration file(s) (merged in order) against
 expand         list the run directories a configuration defines
 run-params     write one run's ``params.yaml`` (input of ``granflow simulate``)
 row            one campaign-table row from a finished run (+ Ps fit for bidisperse runs)
-hstop-step     one step of the adaptive hstop search (Weinhart et al. 2012 §6)
+hstop-step     one step of the adaptive hstop search
+hstop-bisect   one step of an hstop bisection chain at one filling height
 collect        rows -> campaign table (netCDF + CSV), excluded runs, segregation fits
 fit            every closure fit of the table -> fits.json + closures.csv
 library        write (or reuse) the versioned closure library; copy it to a fixed path
@@ -105,6 +106,25 @@ def cmd_hstop_step(args):
           + (f"next {nxt.path}" if nxt else f"finished ({state['search']['done_reason']})"))
 
 
+def cmd_bisect_step(args):
+    from . import hstop as hs
+
+    if args.state is None:
+        state = hs.init_bisection(args.law, args.lam, args.H, json.loads(args.settings or "{}"),
+                                  replicate=args.replicate)
+    else:
+        if args.summary is None:
+            raise ValueError("hstop-bisect --state needs --summary of the proposed run")
+        state = hs.bisection_step(hs.read_state(args.state), args.summary, args.run)
+    hs.write_state(state, args.out)
+    nxt = hs.bisection_next_point(state)
+    last = state.get("last")
+    print(f"hstop bisection {args.law} lambda={args.lam} H={args.H} replicate "
+          f"{state.get('replicate', 0)} step {state['step']}: "
+          + (f"{last['run']} {last['flow_state']}; " if last else "")
+          + (f"next {nxt.path}" if nxt else f"finished ({state['bisection']['note']})"))
+
+
 def cmd_collect(args):
     from .collect import collect_table
 
@@ -113,8 +133,9 @@ def cmd_collect(args):
         rows += [line.strip() for line in Path(args.rows_from).read_text().splitlines()
                  if line.strip()]
     attrs = {"title": f"granflow campaign table {args.campaign}", "campaign": args.campaign}
+    config = json.loads(args.config_json) if args.config_json else None
     table = collect_table(rows, args.out_nc, args.out_csv, args.excluded, args.segregation,
-                          attrs=attrs)
+                          attrs=attrs, config=config)
     print(f"campaign table: {len(table)} runs -> {args.out_nc}, {args.out_csv}")
 
 
@@ -133,8 +154,9 @@ def cmd_fit(args):
     for r in fits:
         where = ", ".join(f"{k}={v}" for k, v in sorted(r.coords.items()))
         vals = ", ".join(f"{k}={v:.4g}+-{r.stderr.get(k, float('nan')):.2g}"
-                         for k, v in r.params.items()) if r.ok else r.message
-        print(f"{r.kind:>22} [{where}]: {vals}")
+                         f" [{r.param_status.get(k, '')}]" for k, v in r.params.items()
+                         if r.param_status.get(k) not in ("not_in_form", "not_fitted"))
+        print(f"{r.kind:>22} [{where}] {r.state} ({r.form}): {vals or r.message}")
 
 
 def cmd_library(args):
@@ -153,9 +175,13 @@ def cmd_library(args):
         keep = [c for c in ("run", "theta", "H", "lam", "sigma", "contact_law", "state", "reason")
                 if c in ex]
         attrs["excluded_runs_json"] = ex[keep].to_json(orient="records")
+    from .reductions import reductions_vs_paper
+
+    if args.reductions:
+        attrs["library_note"] = args.reductions
     info = publish_library(args.dir, args.name, fits, table, out=args.out,
                            manifest=args.manifest, config=config,
-                           reductions=args.reductions, attrs=attrs)
+                           reductions=reductions_vs_paper(config, fits), attrs=attrs)
     print(f"closure library {info['name']} v{info['version']} "
           f"({'reused: same content' if info['reused'] else 'new version'}) {info['path']}")
 
@@ -213,6 +239,18 @@ def register(subparsers):
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_hstop_step)
 
+    p = sub.add_parser("hstop-bisect", help="one step of an hstop bisection chain (one H)")
+    p.add_argument("--law", required=True)
+    p.add_argument("--lam", type=float, required=True)
+    p.add_argument("--H", type=float, required=True)
+    p.add_argument("--replicate", type=int, default=0, help="replicate k (insertion seed + k)")
+    p.add_argument("--settings", default=None, help="bisection settings (JSON), step 0")
+    p.add_argument("--state", default=None, help="previous state (omit for step 0)")
+    p.add_argument("--summary", default=None, help="summary.json of the proposed run")
+    p.add_argument("--run", default=None, help="that run's directory (checked)")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_bisect_step)
+
     p = sub.add_parser("collect", help="campaign table from row files")
     p.add_argument("rows", nargs="*")
     p.add_argument("--rows-from", default=None, help="file listing row files, one a line")
@@ -221,6 +259,8 @@ def register(subparsers):
     p.add_argument("--out-csv", required=True)
     p.add_argument("--excluded", default=None)
     p.add_argument("--segregation", default=None)
+    p.add_argument("--config-json", default=None,
+                   help="the campaign configuration (JSON): config hash, attribution")
     p.set_defaults(func=cmd_collect)
 
     p = sub.add_parser("fit", help="all closure fits of a campaign table")
@@ -242,7 +282,9 @@ def register(subparsers):
     p.add_argument("--name", required=True)
     p.add_argument("--out", default=None, help="fixed-path copy of the chosen version")
     p.add_argument("--manifest", default=None, help="JSON naming the chosen version")
-    p.add_argument("--reductions", default=None)
+    p.add_argument("--reductions", default=None,
+                   help="free-text note stored as library_note (reductions_vs_paper is "
+                        "generated from the configuration and the fits)")
     p.add_argument("--campaign", default=None)
     p.add_argument("--config-json", default=None)
     p.set_defaults(func=cmd_library)

@@ -3,7 +3,9 @@
 :func:`check_config` validates a configuration mapping against the workflow's JSON schema
 (``workflow/schemas/config.schema.yaml``; the Snakefile then also runs
 ``snakemake.utils.validate`` on it) and adds the cross-field checks a schema cannot express
-(box at least 3 lambda wide, hstop search bounds ordered, at least one run).  Every error reads
+(box at least 3 lambda wide, hstop search bounds ordered, averaging time and segregation
+profile window within t_end, at least three size ratios for the Ps(sigma) law, at least one
+run).  Every error reads
 like ``config key campaigns.chute.grids[0].theta[1] = 95: must be < 90; allowed: inclination
 theta in degrees, in (0, 90)``.
 """
@@ -15,6 +17,9 @@ from pathlib import Path
 import yaml
 
 from .grid import campaign_cfg, enabled, expand_runs
+
+#: the Ps(sigma) law T-eq. (29) has two parameters: at least three size ratios in (0, 1)
+MIN_PS_LAW_RATIOS = 3
 
 
 def load_yaml(path) -> dict:
@@ -85,6 +90,14 @@ def semantic_errors(config: dict) -> list[str]:
                            f"least 3 lambda = {3 * lam} wide for lambda = {lam}")
         if kind == "segregation" and "sigma" not in c:
             out.append("config key campaigns.segregation.sigma is missing: give the size ratios")
+        if kind == "segregation" and "sigma" in c:
+            ratios = sorted({float(x) for x in c["sigma"] if 0 < float(x) < 1})
+            if len(ratios) < MIN_PS_LAW_RATIOS:
+                out.append(f"config key campaigns.segregation.sigma = {list(c['sigma'])}: the "
+                           f"Ps(sigma) law (Thornton et al. T-eq. 29, two parameters) needs at "
+                           f"least {MIN_PS_LAW_RATIOS} distinct size ratios in (0, 1), got "
+                           f"{len(ratios)}; allowed: sigma in (0, 1], sigma = 1 is the "
+                           "no-segregation control and does not count")
         if kind == "segregation" and any(k not in c for k in ("theta", "H")):
             out.append("config keys campaigns.segregation.theta and .H are required when the "
                        "segregation campaign is enabled")
@@ -93,10 +106,39 @@ def semantic_errors(config: dict) -> list[str]:
             if s.get("enabled") and s.get("theta_min", 5.0) >= s.get("theta_max", 40.0):
                 out.append("config keys campaigns.chute.hstop_search.theta_min/theta_max: "
                            "theta_min must be below theta_max")
+    out += _time_errors(config)
     search_on = enabled(config, "chute") and bool(
         (campaign_cfg(config, "chute").get("hstop_search") or {}).get("enabled"))
     if not out and not expand_runs(config) and not search_on:
         out.append("the configuration defines no runs: enable a campaign with a non-empty grid")
+    return out
+
+
+def _time_errors(config: dict) -> list[str]:
+    """averaging_time (and the segregation profile_window) must fit into t_end, per campaign
+    (top-level numerics overridden by the campaign's own numerics)."""
+    out = []
+    top = config.get("numerics") or {}
+    for kind in ("chute", "segregation"):
+        if not enabled(config, kind):
+            continue
+        c = campaign_cfg(config, kind)
+        own = c.get("numerics") or {}
+
+        def where(key):
+            return f"campaigns.{kind}.numerics.{key}" if key in own else f"numerics.{key}"
+
+        t_end = own.get("t_end", top.get("t_end"))
+        checks = [("averaging_time", own.get("averaging_time", top.get("averaging_time")),
+                   where("averaging_time"))]
+        if kind == "segregation" and c.get("profile_window") is not None:
+            checks.append(("profile_window", c["profile_window"],
+                           "campaigns.segregation.profile_window"))
+        for _, value, key in checks:
+            if t_end is not None and value is not None and float(value) > float(t_end):
+                out.append(f"config key {key} = {value} is longer than the run, "
+                           f"{where('t_end')} = {t_end}; allowed: at most t_end (the average "
+                           f"is taken over the last {key.split('.')[-1]} time units of a run)")
     return out
 
 

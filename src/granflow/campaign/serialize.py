@@ -58,7 +58,10 @@ def fit_to_dict(r: FitResult) -> dict:
         "error": r.error, "n_points": r.n_points, "ok": r.ok, "message": r.message,
         "stderr_method": r.stderr_method, "error_measure": r.error_measure,
         "valid_range": {k: list(v) for k, v in r.valid_range.items()},
-        "coords": r.coords, "extra": r.extra,
+        "coords": r.coords, "extra": r.extra, "status": r.status, "form": r.form,
+        "param_status": r.param_status, "param_reason": r.param_reason,
+        "ensemble": [list(e) for e in r.ensemble], "diagnostics": r.diagnostics,
+        "runs_used": list(r.runs_used), "selection": r.selection,
     })
 
 
@@ -71,7 +74,13 @@ def fit_from_dict(d: dict) -> FitResult:
                      stderr_method=d.get("stderr_method", "covariance"),
                      error_measure=d.get("error_measure", ""),
                      valid_range={k: tuple(v) for k, v in d.get("valid_range", {}).items()},
-                     coords=dict(d.get("coords", {})), extra=extra)
+                     coords=dict(d.get("coords", {})), extra=extra,
+                     status=d.get("status", ""), form=d.get("form", "full"),
+                     param_status=dict(d.get("param_status", {})),
+                     param_reason=dict(d.get("param_reason", {})),
+                     ensemble=tuple(tuple(e) for e in d.get("ensemble", [])),
+                     diagnostics=dict(d.get("diagnostics", {})),
+                     runs_used=tuple(d.get("runs_used", [])), selection=d.get("selection", ""))
 
 
 def dumps(obj) -> str:

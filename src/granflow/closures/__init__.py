@@ -10,7 +10,7 @@
 """
 
 from .compare import compare_libraries, format_comparison
-from .evaluate import K, Ps, alpha, density, froude, hstop, mu, mu_I
+from .evaluate import K, Ps, alpha, closure_status, density, froude, hstop, mu, mu_I
 from .library import (build_library_dataset, campaign_table, content_hash, library_path,
                       library_versions, open_library, write_library)
 from .schema import KINDS, SCHEMA_NAME, SCHEMA_VERSION

@@ -87,7 +87,7 @@ def compare_libraries(path_a, path_b) -> pd.DataFrame:
                          "parameter": attrs.get("parameter", name),
                          "contact_law": law, "lambda": math.nan if lam == "nan" else lam,
                          "sigma": math.nan if sig == "nan" else sig,
-                         "units": attrs.get("units", ""), "value_a": va, "stderr_a": sa,
+                         "units": attrs.get("nondimensional_unit") or attrs.get("units", ""), "value_a": va, "stderr_a": sa,
                          "value_b": vb, "stderr_b": sb, "difference": diff,
                          "combined_stderr": comb, "z": z})
     return pd.DataFrame(rows, columns=list(COMPARISON_COLUMNS))

@@ -16,6 +16,7 @@ values (see :func:`content_hash`), which :func:`open_library` verifies.
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
 import re
@@ -26,17 +27,20 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from .. import cfconventions
 from .. import units as U
 from ..fitting.result import FitResult
 from ..fitting.table import COLUMN_ATTRS, STRING_COLUMNS, validate_campaign_table
 from ..provenance import atomic_to_netcdf, provenance_attrs
+from ..fitting.identify import CRITERION
 from .schema import (CAMPAIGN_PREFIX, CONTACT_LAW_DIM, COORD_TO_DIM, KINDS, LAMBDA_DIM,
-                     RUN_DIM, SCHEMA_NAME, SCHEMA_VERSION, SIGMA_DIM)
+                     RUN_DIM, SAMPLE_DIM, SCHEMA_NAME, SCHEMA_VERSION, SIGMA_DIM)
 
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 RESERVED_ATTRS = ("granflow_schema", "schema_version", "library_name", "library_version",
                   "content_hash", "created", "granflow_version", "git_commit", "config_hash",
-                  "config_json", "units_system", "reductions_vs_paper", "Conventions", "kinds")
+                  "config_json", "units_system", "reductions_vs_paper", "Conventions", "kinds",
+                  "identifiability_criterion")
 _LAMBDA_ATOL = 1e-9
 
 
@@ -126,6 +130,7 @@ def _closure_variables(results, default_contact_law):
              SIGMA_DIM: _unique_floats(coord_values[SIGMA_DIM])}
 
     data_vars = {}
+    max_samples = [0]
     for kind in sorted(by_kind):
         spec = KINDS[kind]
         shape = tuple(len(cvals[d]) for d in spec.dims)
@@ -135,6 +140,16 @@ def _closure_variables(results, default_contact_law):
         ok = np.zeros(shape, dtype=np.int8)
         npts = np.zeros(shape, dtype=np.int32)
         msg = np.full(shape, "not fitted", dtype=object)
+        status = np.full(shape, "not fitted", dtype=object)
+        form = np.full(shape, "", dtype=object)
+        selection = np.full(shape, "", dtype=object)
+        pstat = {p: np.full(shape, "not_fitted", dtype=object) for p in spec.params}
+        preason = {p: np.full(shape, "", dtype=object) for p in spec.params}
+        diag = {k: np.full(shape, np.nan) for k in ("heldout_max_abs_z", "chi2_dof",
+                                                     "birge_ratio")}
+        between = {p: np.full(shape, np.nan) for p in spec.params}
+        heldout_json = np.full(shape, "{}", dtype=object)
+        ens = {}
         rmin = {v: np.full(shape, np.nan) for v in spec.ranges}
         rmax = {v: np.full(shape, np.nan) for v in spec.ranges}
         extra = {}
@@ -156,6 +171,26 @@ def _closure_variables(results, default_contact_law):
             ok[idx] = int(bool(r.ok))
             npts[idx] = int(r.n_points)
             msg[idx] = r.message or ("ok" if r.ok else "failed")
+            status[idx] = r.state
+            form[idx] = r.form
+            selection[idx] = r.selection
+            for p in spec.params:
+                pstat[p][idx] = r.param_status.get(p, "identified" if r.ok else "unidentified")
+                preason[p][idx] = r.param_reason.get(p, "")
+            d = r.diagnostics
+            diag["heldout_max_abs_z"][idx] = d.get("heldout_max_abs_z", np.nan)
+            if d.get("dof"):
+                diag["chi2_dof"][idx] = d.get("chi2", np.nan) / d["dof"]
+            diag["birge_ratio"][idx] = d.get("birge_ratio", np.nan)
+            for p, parts in (d.get("uncertainty_split") or {}).items():
+                if p in between:
+                    between[p][idx] = parts.get("between", np.nan)
+            heldout_json[idx] = json.dumps({k: (v if math.isfinite(v) else None)
+                                            for k, v in d.get("heldout_z", {}).items()},
+                                           sort_keys=True)
+            arr = r.ensemble_array()
+            if arr.shape[0]:
+                ens[idx] = arr
             methods.add(r.stderr_method)
             for v, (lo, hi) in r.valid_range.items():
                 if v in spec.ranges:
@@ -189,6 +224,53 @@ def _closure_variables(results, default_contact_law):
             U.DIMENSIONLESS, f"number of data points in the {kind} fit", closure_kind=kind))
         data_vars[f"{kind}_message"] = (dims, msg, {"long_name": f"{kind} fit status message",
                                                     "closure_kind": kind})
+        data_vars[f"{kind}_status"] = (dims, status, {
+            "long_name": f"{kind} closure status", "closure_kind": kind,
+            "allowed_values": "ok reduced unidentified misfit failed",
+            "comment": "ok: every parameter of the full form identified; reduced: a stated "
+                       "reduced form is identified and stored; unidentified: no form is; "
+                       "misfit: a held-out run contradicts it; failed: no fit"})
+        data_vars[f"{kind}_form"] = (dims, form, {
+            "long_name": f"{kind} closure form stored (full or a reduced form)",
+            "closure_kind": kind})
+        data_vars[f"{kind}_selection"] = (dims, selection, {
+            "long_name": f"runs used by the {kind} fit and why others were left out",
+            "closure_kind": kind})
+        for p in spec.params:
+            data_vars[f"{kind}_{p}_status"] = (dims, pstat[p], {
+                "long_name": f"identifiability of {kind} parameter {p}", "closure_kind": kind,
+                "allowed_values": "identified unidentified fixed not_in_form not_fitted",
+                "criterion": CRITERION})
+            data_vars[f"{kind}_{p}_reason"] = (dims, preason[p], {
+                "long_name": f"why {kind} parameter {p} has its status", "closure_kind": kind})
+        for p in spec.params:
+            if np.isfinite(between[p]).any():
+                data_vars[f"{kind}_{p}_between_seed_fraction"] = (dims, between[p], U.cf(
+                    U.DIMENSIONLESS, f"share of the variance of {kind} parameter {p} from the "
+                    "scatter between seeds (replicates; the rest is within-run)",
+                    closure_kind=kind))
+        data_vars[f"{kind}_heldout_max_abs_z"] = (dims, diag["heldout_max_abs_z"], U.cf(
+            U.DIMENSIONLESS, f"largest held-out (leave-one-out) |z| of the {kind} closure",
+            closure_kind=kind))
+        data_vars[f"{kind}_heldout_z_json"] = (dims, heldout_json, {
+            "long_name": f"held-out z-score per run of the {kind} closure (JSON)",
+            "closure_kind": kind})
+        data_vars[f"{kind}_chi2_dof"] = (dims, diag["chi2_dof"], U.cf(
+            U.DIMENSIONLESS, f"chi-square per degree of freedom of the {kind} fit (runs "
+            "weighted by their standard errors)", closure_kind=kind))
+        data_vars[f"{kind}_birge_ratio"] = (dims, diag["birge_ratio"], U.cf(
+            U.DIMENSIONLESS, f"Birge ratio sqrt(chi2/dof) of the {kind} fit (stderr inflated by "
+            "it when > 1)", closure_kind=kind))
+        if ens:
+            n_s = max(a.shape[0] for a in ens.values())
+            max_samples[0] = max(max_samples[0], n_s)
+            for j, p in enumerate(spec.params):
+                arr = np.full(shape + (n_s,), np.nan)
+                for idx, a in ens.items():
+                    arr[idx + (slice(0, a.shape[0]),)] = a[:, j]
+                data_vars[f"{kind}_ensemble_{p}"] = (dims + (SAMPLE_DIM,), arr, U.cf(
+                    spec.params[p][0], f"ensemble of {spec.params[p][1]} (bootstrap refits or "
+                    "covariance draws)", closure_kind=kind, parameter=p))
         for v, (units, long_name) in spec.ranges.items():
             data_vars[f"{kind}_{v}_min"] = (dims, rmin[v], U.cf(
                 units, f"smallest {long_name} in the {kind} fit data", closure_kind=kind))
@@ -200,6 +282,10 @@ def _closure_variables(results, default_contact_law):
             name = f"{kind}_Ps_{key}" if base == "ci95" else f"{kind}_{key}"
             data_vars[name] = (dims, arr, U.cf(units, long_name + (
                 f" ({key.rsplit('_', 1)[1]} end)" if base != key else ""), closure_kind=kind))
+    for name, (dims, arr, attrs) in list(data_vars.items()):
+        if SAMPLE_DIM in dims and arr.shape[-1] < max_samples[0]:
+            pad = np.full(arr.shape[:-1] + (max_samples[0] - arr.shape[-1],), np.nan)
+            data_vars[name] = (dims, np.concatenate([arr, pad], axis=-1), attrs)
     coords = {}
     for dim, long_name, units in ((CONTACT_LAW_DIM, "contact law", None),
                                   (LAMBDA_DIM, "basal roughness lambda = d_base/d_flow", U.DIMENSIONLESS),
@@ -217,9 +303,13 @@ def _campaign_variables(table: pd.DataFrame):
     table = table.reset_index(drop=True)
     out = {}
     for col in table.columns:
-        name = f"{CAMPAIGN_PREFIX}{col}"
+        # CF 2.3: no two names that differ only by case (campaign_h, campaign_H)
+        name = f"{CAMPAIGN_PREFIX}{'H_fill' if col == 'H' else col}"
         series = table[col]
-        attrs = dict(COLUMN_ATTRS.get(col, {"long_name": f"campaign column {col}"}))
+        from ..campaign.collect import EXTRA_ATTRS  # units of the non-schema columns
+
+        attrs = dict(COLUMN_ATTRS.get(col) or EXTRA_ATTRS.get(col)
+                     or {"long_name": f"campaign column {col}"})
         attrs["campaign_column"] = str(col)
         if col in STRING_COLUMNS or not pd.api.types.is_numeric_dtype(series) \
                 or pd.api.types.is_bool_dtype(series):
@@ -229,6 +319,37 @@ def _campaign_variables(table: pd.DataFrame):
             values = series.to_numpy(dtype=float)
             attrs["campaign_dtype"] = "float"
         out[name] = ((RUN_DIM,), values, attrs)
+    return out
+
+
+def _run_usage_variables(table: pd.DataFrame, results) -> dict:
+    """Per run: which closures it entered (``campaign_used_by_<kind>``, int8) and its held-out
+    z-score in each (``campaign_heldout_z_<kind>``; NaN where not held out)."""
+    from ..fitting.campaign import _ids
+
+    ids = list(_ids(table.reset_index(drop=True)))
+    pos = {rid: i for i, rid in enumerate(ids)}
+    used, zs = {}, {}
+    for r in results:
+        if not r.runs_used:
+            continue
+        u = used.setdefault(r.kind, np.zeros(len(ids), dtype=np.int8))
+        z = zs.setdefault(r.kind, np.full(len(ids), np.nan))
+        for rid in r.runs_used:
+            if rid in pos:
+                u[pos[rid]] = 1
+        for rid, v in r.diagnostics.get("heldout_z", {}).items():
+            if rid in pos and v is not None:
+                z[pos[rid]] = v
+    out = {}
+    for kind in sorted(used):
+        out[f"{CAMPAIGN_PREFIX}used_by_{kind}"] = ((RUN_DIM,), used[kind], U.cf(
+            U.DIMENSIONLESS, f"run entered the {kind} fit", flag_values=np.array([0, 1], np.int8),
+            flag_meanings="not_used used", campaign_derived=1))
+        if np.isfinite(zs[kind]).any():
+            out[f"{CAMPAIGN_PREFIX}heldout_z_{kind}"] = ((RUN_DIM,), zs[kind], U.cf(
+                U.DIMENSIONLESS, f"held-out (leave-one-out) z-score of the run in the {kind} fit",
+                campaign_derived=1))
     return out
 
 
@@ -242,13 +363,14 @@ def build_library_dataset(fits, campaign_table=None, *, name="closures", version
     data_vars, coords, kinds = _closure_variables(results, default_contact_law)
     if campaign_table is not None:
         data_vars.update(_campaign_variables(campaign_table))
+        data_vars.update(_run_usage_variables(campaign_table, results))
     ds = xr.Dataset(data_vars=data_vars, coords=coords)
     user = dict(attrs or {})
     clash = sorted(set(user) & set(RESERVED_ATTRS))
     if clash:
         raise ValueError(f"attrs may not set reserved global attributes {clash}")
     glob = {
-        "Conventions": "CF-1.8",
+        "Conventions": cfconventions.CONVENTIONS,
         "title": f"granflow closure library {name} v{version}",
         "granflow_schema": SCHEMA_NAME,
         "schema_version": SCHEMA_VERSION,
@@ -258,6 +380,7 @@ def build_library_dataset(fits, campaign_table=None, *, name="closures", version
         "references": "Weinhart, Thornton, Luding, Bokhove (2012) Granular Matter 14:531; "
                       "Thornton, Weinhart, Ogarko, Luding, multi-scale methods (segregation)",
         "reductions_vs_paper": reductions if reductions else "none stated",
+        "identifiability_criterion": CRITERION,
     }
     glob.update(provenance_attrs(config if config is not None else {}))
     for key, value in user.items():
@@ -268,6 +391,13 @@ def build_library_dataset(fits, campaign_table=None, *, name="closures", version
         glob[key] = value
     ds.attrs = glob
     ds.attrs["content_hash"] = content_hash(ds)
+    cfconventions.apply(  # CF/ACDD attributes (not hashed: attributes only)
+        ds, kind="closure_library", config=config,
+        summary=(f"Closure relations for shallow granular flows ({', '.join(kinds)}) fitted "
+                 "with uncertainties to a campaign of periodic-chute discrete particle "
+                 "simulations (Weinhart et al. 2012 Eq. 45-55; Thornton et al. T-eq. 28-29), "
+                 "with the campaign table they were fitted to."),
+        title=glob["title"], identifier=f"{name}-v{int(version)}")
     return ds
 
 
@@ -388,7 +518,8 @@ def campaign_table(lib: xr.Dataset) -> pd.DataFrame:
     """The campaign table stored in a library (empty DataFrame if none)."""
     cols = {}
     for name, var in lib.data_vars.items():
-        if name.startswith(CAMPAIGN_PREFIX) and var.dims == (RUN_DIM,):
+        if (name.startswith(CAMPAIGN_PREFIX) and var.dims == (RUN_DIM,)
+                and not var.attrs.get("campaign_derived")):
             col = var.attrs.get("campaign_column", name[len(CAMPAIGN_PREFIX):])
             values = var.values
             if var.attrs.get("campaign_dtype") == "str":

@@ -6,7 +6,16 @@ size ratio) as these variables, every one with CF ``units`` and ``long_name``:
 
 * ``<kind>_<param>`` and ``<kind>_<param>_stderr`` -- fitted parameter and its standard error;
 * ``<kind>_error`` -- the fit's error measure (Weinhart et al. 2012 Eq. 49 of its residuals);
-* ``<kind>_ok`` (int8 flag 0/1), ``<kind>_n_points``, ``<kind>_message``;
+* ``<kind>_ok`` (int8 flag 0/1: 1 only when every parameter of the stored form is identified
+  and no held-out run contradicts it), ``<kind>_status`` (ok, reduced, unidentified, misfit,
+  failed), ``<kind>_form`` (full or the name of a stated reduced form), ``<kind>_n_points``,
+  ``<kind>_message``, ``<kind>_selection`` (which runs entered and why others did not);
+* ``<kind>_<param>_status`` / ``_reason`` -- identified, unidentified, fixed or not_in_form, and
+  why (:mod:`granflow.fitting.identify`);
+* ``<kind>_ensemble_<param>`` (dim ``sample``) -- bootstrap refits or covariance draws, from
+  which evaluators compute the uncertainty of an evaluated closure;
+* ``<kind>_heldout_max_abs_z``, ``<kind>_chi2_dof``, ``<kind>_birge_ratio`` -- fit diagnostics;
+  per run ``campaign_used_by_<kind>`` (int8) and ``campaign_heldout_z_<kind>``;
 * ``<kind>_<var>_min`` / ``_max`` -- range of the data the fit saw (evaluators refuse to leave it
   unless asked to extrapolate);
 * declared extras, e.g. ``segregation_Ps_ci95_low/high``.
@@ -21,11 +30,12 @@ from dataclasses import dataclass, field
 from .. import units as U
 
 SCHEMA_NAME = "granflow.closures"
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "2.0"
 LAMBDA_DIM = "lambda"
 CONTACT_LAW_DIM = "contact_law"
 SIGMA_DIM = "sigma"
 RUN_DIM = "run"
+SAMPLE_DIM = "sample"
 CAMPAIGN_PREFIX = "campaign_"
 
 #: FitResult.coords key -> library dimension
@@ -82,13 +92,18 @@ KINDS = {
         (CONTACT_LAW_DIM,), "Weinhart et al. 2012 Eq. (52)",
         {"c0": (U.DIMENSIONLESS, "bulk volume fraction coefficient c0"),
          "c1": (U.ANGLE, "bulk volume fraction angle scale c1"),
-         "c2": (U.ANGLE, "bulk volume fraction angle offset c2")},
+         "c2": (U.ANGLE, "bulk volume fraction angle offset c2"),
+         "nu_ref": (U.DIMENSIONLESS, "bulk volume fraction at theta_ref (reduced forms)"),
+         "dnu_dtheta": (U.PER_DEGREE, "slope of the bulk volume fraction with theta "
+                                      "(linear reduced form)")},
         U.DIMENSIONLESS, dict(_ANGLE_RANGE),
-        {"rho_p": (U.DENSITY, "particle material density rho_p")}),
+        {"rho_p": (U.DENSITY, "particle material density rho_p"),
+         "theta_ref": (U.ANGLE, "reference inclination of the reduced forms")}),
     "stress_ratio": KindSpec(
         (CONTACT_LAW_DIM,), "Weinhart et al. 2012 Eq. (53)",
         {"d0": (U.ANGLE, "stress-ratio angle scale d0"),
-         "d1": (U.ANGLE, "stress-ratio angle offset d1")},
+         "d1": (U.ANGLE, "stress-ratio angle offset d1"),
+         "K_ref": (U.DIMENSIONLESS, "constant stress ratio (reduced form)")},
         U.DIMENSIONLESS, dict(_ANGLE_RANGE)),
     "segregation": KindSpec(
         (CONTACT_LAW_DIM, SIGMA_DIM), "Thornton et al. T-eq. (28)",
@@ -105,8 +120,11 @@ KINDS = {
     "Ps_law": KindSpec(
         (CONTACT_LAW_DIM,), "Thornton et al. T-eq. (29)",
         {"Pmax": (U.DIMENSIONLESS, "maximum Peclet number Pmax"),
-         "k": (U.DIMENSIONLESS, "Peclet-number growth rate k")}, U.DIMENSIONLESS,
-        {"sigma": (U.DIMENSIONLESS, "size ratio sigma")}),
+         "k": (U.DIMENSIONLESS, "Peclet-number growth rate k"),
+         "slope": (U.DIMENSIONLESS, "initial slope dPs/d(1/sigma) (linear reduced form)")},
+        U.DIMENSIONLESS, {"sigma": (U.DIMENSIONLESS, "size ratio sigma")},
+        {"Pmax_lower_bound": (U.DIMENSIONLESS, "one-sided 95 % lower bound on Pmax from the "
+                                               "largest measured Ps")}),
     "mu_I": KindSpec(
         (CONTACT_LAW_DIM,), "seed 001 Eq. (2.13)",
         {"mu_s": (U.DIMENSIONLESS, "static friction mu_s"),

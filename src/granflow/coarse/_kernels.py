@@ -11,14 +11,34 @@ forms in the kernel's cumulative distribution G (error functions):
 
     flow-flow pair, segment r_i -> r_j (s in [0, 1]):
         int_0^1 g(z - z_i + s r_ij,z) ds = (G(z - z_j) - G(z - z_i)) / r_ij,z
-    flow-base pair, half-line from r_i through the contact point c (direction u, s in [0, inf)):
-        int_0^inf g(z - z_i - t u_z) dt = (1 - G(z - z_i)) / |u_z|   (u_z < 0, line goes down)
-                                        =       G(z - z_i)  / u_z    (u_z > 0, line goes up)
+    flow-base pair, path from r_i to z = -inf.  Any path from the flow particle's centre to
+    infinity satisfies the momentum balance exactly (d/ds W(r - r(s)) integrates to W(r - r_i));
+    three are offered (``base_mode``, cf. MercuryDPM's choice of where a fixed particle's contact
+    stress goes):
+      BASE_CONTACT_THEN_DOWN (default): the segment r_i -> contact point c, then straight down
+        (-z) from c.  sigma_ab = f_a r_b / r_z (G(z - z_c) - G(z - z_i)) + [b = z] f_a (1 - G(z - z_c))
+        with r = r_i - c: the flow particle's half of the branch, as for a flow-flow pair, and
+        the base takes the load below the contact.  Every component is exactly zero above
+        max(z_i, z_c) + cutoff w, and the depth integral of each is the virial f_a r_b of the
+        half-branch, bounded by |f| d/2 -- whereas a half-line of direction u carries
+        f_a u_b / u_z per unit depth below its start, unbounded for near-horizontal contacts
+        (on the paper's 12-layer base that made the depth-averaged K of a steady thick flow
+        1.11 +- 0.11 with the line turned down for upward contacts only, against 1.00 in the
+        bulk).
+      BASE_DOWN: straight down from r_i: sigma_az = f_a (1 - G(z - z_i)), the other components 0.
+      BASE_THROUGH_CONTACT: the literal half-line of Weinhart et al. (2012) §3, from r_i through
+        c and beyond (direction u):
+          int_0^inf g(z - z_i - t u_z) dt = (1 - G(z - z_i)) / |u_z|   (u_z < 0, line goes down)
+                                          =       G(z - z_i)  / u_z    (u_z > 0, line goes up)
+        On a rough base a flow particle often sits in a hole below the centre of the base
+        particle it touches; its line then points *up* through the whole flow and leaves a
+        constant stress plateau (xx, yy, xy, and -f_a in the az components) everywhere above.
+        Kept only to reproduce old profiles; physics.md §4 records the resolution.
 
 Sign convention: compressive stress is positive, sigma = -sigma_Cauchy, so
 
     sigma_ab(z) = sum_pairs c_ab (G(z - z_j) - G(z - z_i))      c_ab = f_a r_ij,b / r_ij,z
-                + sum_base  c_ab ([u_z < 0] - G(z - z_i))       c_ab = f_a u_b / u_z
+                + sum_base  (one of the base paths above)
                 + sum_i m_i v'_a v'_b g(z - z_i)
 
 (f = force on the flow particle i, r_ij = r_i - r_j; Eq. (32) with the overall sign flipped) and
@@ -61,6 +81,11 @@ HORIZONTAL_TOL = 1e-4
 DEGENERATE_TOL = 1e-9
 #: Hermite table nodes per coarse-graining width (at least).
 TABLE_NODES_PER_WIDTH = 256
+
+#: Paths of a flow-base contact's stress (see the module docstring).
+BASE_THROUGH_CONTACT = 0
+BASE_CONTACT_THEN_DOWN = 1
+BASE_DOWN = 2
 
 N_BASIC = 10  # density, momentum(3), kinetic(6)
 #: stress components stored: (force component a, line direction b)
@@ -130,19 +155,132 @@ def cdf_table(width, cutoff, dz, m_sub):
 
 
 @njit(cache=True)
-def pair_coefficients(pos, fixed, ci, cj, force, rij, cpoint, width, base_down,
-                      coef, const_base, buf, z0, dz, cutoff, norm, col_contact):
+def hermite_weights(t):
+    """Node index j = floor(t) (>= 0) and the cubic Hermite weights (h00, h10, h01, h11) at the
+    fraction t - j, for the table of :func:`cdf_table`."""
+    j = int(math.floor(t))
+    if j < 0:
+        j = 0
+    fr = t - j
+    fr2 = fr * fr
+    fr3 = fr2 * fr
+    return (j, 2.0 * fr3 - 3.0 * fr2 + 1.0, fr3 - 2.0 * fr2 + fr, -2.0 * fr3 + 3.0 * fr2,
+            fr3 - fr2)
+
+
+@njit(cache=True)
+def cdf_on_grid(zc, z0, dz, k0, n_pts, width, cutoff, tab, m_sub, out):
+    """out[k] = G(z0 + (k0 + k) dz - zc) for k < n_pts: 0 below and 1 above the support of a
+    kernel centred at ``zc``, the cubic Hermite table inside it (weights fixed per centre, since
+    table nodes are aligned with the grid)."""
+    lim = cutoff * width
+    h = dz / m_sub
+    a0 = z0 + k0 * dz - zc
+    # the first grid point inside the support, and the Hermite weights there
+    kin = 0
+    if a0 <= -lim:
+        kin = int(math.floor((-lim - a0) / dz)) + 1
+    a_in = a0 + kin * dz
+    j, h00, h10, h01, h11 = hermite_weights((a_in + lim) / h)
+    nt = tab.shape[0]
+    for k in range(n_pts):
+        a = a0 + k * dz
+        if k < kin or a <= -lim:
+            out[k] = 0.0
+        elif a >= lim or j + 1 >= nt:
+            out[k] = 1.0
+        else:
+            out[k] = h00 * tab[j, 0] + h10 * tab[j, 1] + h01 * tab[j + 1, 0] + h11 * tab[j + 1, 1]
+        if k >= kin:
+            j += m_sub
+
+
+@njit(cache=True)
+def spread_base_contact(zi, r, segment, zt, w, width, cutoff, norm, z0, dz, tab, m_sub,
+                        buf, col_b, below, Gi, Gc):
+    """Spread one flow-base contact's stress directly into ``buf`` columns col_b .. col_b+5:
+
+    * with ``segment``, the segment from r_i to c = r_i - r: v_q (G(z - z_c) - G(z - z_i)),
+      v_q = f_a r_b / r_z (midpoint expansion when near-horizontal; ``w`` then carries f);
+    * a half-line from height ``zt`` downwards: w_q (1 - G(z - zt)).
+
+    The constant w_q below the supports goes to ``below`` (suffix-summed in
+    :func:`finalize_snapshot`).  Nothing is written above max(z_i, z_c, zt) + cutoff w."""
+    nz = buf.shape[0]
+    lim = cutoff * width
+    zc = zi - r[2]
+    zlo = min(zt, zi)
+    zhi = max(zt, zi)
+    if segment:
+        zlo = min(zlo, zc)
+        zhi = max(zhi, zc)
+    k0, k1 = grid_range(0.5 * (zlo + zhi), z0, dz, 0.5 * (zhi - zlo) + lim)
+    if k1 < 0:
+        return  # everything lies below the grid
+    if k0 > nz - 1:  # the grid lies entirely below the contact: the constant only
+        for q in range(6):
+            below[nz - 1, q] += w[q]
+        return
+    if k0 < 0:
+        k0 = 0
+    elif k0 > 0:
+        for q in range(6):
+            below[k0 - 1, q] += w[q]
+    if k1 > nz - 1:
+        k1 = nz - 1
+    n_pts = k1 - k0 + 1
+    if n_pts > Gc.shape[0]:  # a very large particle: scratch arrays of the needed size
+        Gi = np.empty(n_pts)
+        Gc = np.empty(n_pts)
+    cdf_on_grid(zt, z0, dz, k0, n_pts, width, cutoff, tab, m_sub, Gc)
+    for q in range(6):
+        if w[q] != 0.0:
+            for k in range(n_pts):
+                buf[k0 + k, col_b + q] += w[q] * (1.0 - Gc[k])
+    if not segment:
+        return
+    f = (r[3], r[4], r[5])
+    rz = r[2]
+    if abs(rz) >= HORIZONTAL_TOL * width:
+        cdf_on_grid(zc, z0, dz, k0, n_pts, width, cutoff, tab, m_sub, Gc)
+        cdf_on_grid(zi, z0, dz, k0, n_pts, width, cutoff, tab, m_sub, Gi)
+        inv = 1.0 / rz
+        for q in range(6):
+            v = f[STRESS_AB[q][0]] * r[STRESS_AB[q][1]] * inv
+            for k in range(n_pts):
+                buf[k0 + k, col_b + q] += v * (Gc[k] - Gi[k])
+    else:  # near-horizontal segment: midpoint expansion, as for flow-flow pairs
+        zm = 0.5 * (zi + zc)
+        w2 = width * width
+        for k in range(n_pts):
+            a_ = z0 + (k0 + k) * dz - zm
+            g = kernel_density(a_, width, cutoff, norm)
+            g *= 1.0 + rz * rz * (a_ * a_ / w2 - 1.0) / (24.0 * w2)
+            for q in range(6):
+                buf[k0 + k, col_b + q] += f[STRESS_AB[q][0]] * r[STRESS_AB[q][1]] * g
+
+
+@njit(cache=True)
+def pair_coefficients(pos, fixed, ci, cj, force, rij, cpoint, width, base_mode,
+                      coef, const_base, buf, z0, dz, cutoff, norm, col_contact,
+                      tab, m_sub, below):
     """Per-particle stress coefficients from the contact list (Eq. 32, compressive positive).
 
-    coef[:, 0:6] collects the flow-flow coefficients c_ab = f_a r_b / r_z (+ on j, - on i),
-    coef[:, 6:12] the flow-base ones c_ab = f_a u_b / u_z (- on i; + on const_base when the
-    half-line points down).  Near-horizontal flow-flow pairs are spread directly into ``buf``.
-    Returns (number of upward base half-lines, number of degenerate base directions).
+    coef[:, 0:6] collects the flow-flow coefficients c_ab = f_a r_b / r_z (+ on j, - on i).
+    Flow-base contacts: with BASE_THROUGH_CONTACT, coef[:, 6:12] collects c_ab = f_a u_b / u_z
+    (- on i; + on const_base when the half-line points down); with the other modes they are
+    spread directly into ``buf`` (and ``below``) by :func:`spread_base_contact`.
+    Near-horizontal flow-flow pairs are spread directly into ``buf``.
+    Returns (number of base contacts whose contact point lies above the flow particle's
+    centre, number of degenerate base directions).
     """
     n_up = 0
     n_degenerate = 0
     lim = cutoff * width
     nz = buf.shape[0]
+    col_b = col_contact + 6
+    Gi = np.empty(int((2.0 * lim + 2.0) / dz) + 8)  # segments up to 2 d tall; grown if needed
+    Gc = np.empty(Gi.shape[0])
     for c in range(ci.shape[0]):
         i = ci[c]
         j = cj[c]
@@ -180,21 +318,32 @@ def pair_coefficients(pos, fixed, ci, cj, force, rij, cpoint, width, base_down,
                     for q in range(6):
                         buf[k, col_contact + q] += f[STRESS_AB[q][0]] * r[STRESS_AB[q][1]] * g
         else:
-            # flow-base pair: half-line from r_i through the contact point and beyond
+            # flow-base pair: u = c - r_i, from the flow particle's centre to the contact point
             if sgn > 0.0:
                 u = (cpoint[c, 0] - pos[i, 0], cpoint[c, 1] - pos[i, 1], cpoint[c, 2] - pos[i, 2])
             else:  # contact point given relative to the base particle j: flow particle i sits
                 # at (min image) r_j - r_ji, so u = c - r_j + r_ji
                 u = (cpoint[c, 0] - pos[j, 0] + rij[c, 0], cpoint[c, 1] - pos[j, 1] + rij[c, 1],
                      cpoint[c, 2] - pos[j, 2] + rij[c, 2])
-            un = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-            if base_down or un == 0.0 or abs(u[2]) <= DEGENERATE_TOL * un:
-                if not base_down:
-                    n_degenerate += 1
-                u = (0.0, 0.0, -1.0)
-            inv = 1.0 / u[2]
             if u[2] > 0.0:
                 n_up += 1
+            if base_mode != BASE_THROUGH_CONTACT:
+                zi = pos[i, 2]
+                # r = r_i - c (the segment) and f, packed for the kernel
+                r6 = (-u[0], -u[1], -u[2], f[0], f[1], f[2])
+                wz = (0.0, 0.0, f[2], 0.0, f[0], f[1])  # [b = z] f_a: xx yy zz xy xz yz
+                if base_mode == BASE_DOWN:
+                    spread_base_contact(zi, r6, False, zi, wz, width, cutoff, norm, z0, dz,
+                                        tab, m_sub, buf, col_b, below, Gi, Gc)
+                else:  # to the contact point, then straight down
+                    spread_base_contact(zi, r6, True, zi - r6[2], wz, width, cutoff, norm, z0,
+                                        dz, tab, m_sub, buf, col_b, below, Gi, Gc)
+                continue
+            un = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+            if un == 0.0 or abs(u[2]) <= DEGENERATE_TOL * un:
+                n_degenerate += 1
+                u = (0.0, 0.0, -1.0)
+            inv = 1.0 / u[2]
             for q in range(6):
                 v = f[STRESS_AB[q][0]] * u[STRESS_AB[q][1]] * inv
                 coef[i, 6 + q] -= v
@@ -272,17 +421,7 @@ def spread_particles(pos, vel, mass, diameter, species, fixed, coef, has_coef, w
         if hc == 0:
             continue
         # cubic Hermite interpolation of G; weights fixed per particle (nodes aligned to grid)
-        t = (a0 + lim) / h
-        j = int(math.floor(t))
-        if j < 0:
-            j = 0
-        fr = t - j
-        fr2 = fr * fr
-        fr3 = fr2 * fr
-        h00 = 2.0 * fr3 - 3.0 * fr2 + 1.0
-        h10 = fr3 - 2.0 * fr2 + fr
-        h01 = -2.0 * fr3 + 3.0 * fr2
-        h11 = fr3 - fr2
+        j, h00, h10, h01, h11 = hermite_weights((a0 + lim) / h)
         n_pts = k1 - k0 + 1
         for k in range(n_pts):
             Gk[k] = h00 * tab[j, 0] + h10 * tab[j, 1] + h01 * tab[j + 1, 0] + h11 * tab[j + 1, 1]
@@ -304,14 +443,21 @@ def spread_particles(pos, vel, mass, diameter, species, fixed, coef, has_coef, w
 
 
 @njit(cache=True)
-def finalize_snapshot(buf, step, const_base, inv_area, n_species, out):
-    """Close one snapshot: prefix-sum the stress plateaus, add the downward base half-line
-    constants, sum the species densities, turn sum m v v into the kinetic stress
-    sum m v v g - rho V V (fluctuations about the snapshot's own V(z)), scale by 1/(Lx Ly) and
-    add into ``out`` (the accumulated sums)."""
+def finalize_snapshot(buf, step, const_base, below, inv_area, n_species, out):
+    """Close one snapshot: prefix-sum the stress plateaus, suffix-sum the base constants below
+    the direct base paths (``below``), add the downward base half-line constants, sum the
+    species densities, turn sum m v v into the kinetic stress sum m v v g - rho V V
+    (fluctuations about the snapshot's own V(z)), scale by 1/(Lx Ly) and add into ``out``
+    (the accumulated sums)."""
     nz = buf.shape[0]
     col_c = N_BASIC + 2 * n_species
     ncol = buf.shape[1]
+    low = np.zeros(6)
+    for k in range(nz - 1, -1, -1):
+        for f_ in range(6):
+            low[f_] += below[k, f_]
+            if low[f_] != 0.0:
+                buf[k, col_c + 6 + f_] += low[f_]
     run = np.zeros(12)
     for k in range(nz):
         for f_ in range(12):
@@ -339,7 +485,7 @@ def finalize_snapshot(buf, step, const_base, inv_area, n_species, out):
 
 @njit(cache=True)
 def coarse_grain_snapshot(pos, vel, mass, diameter, species, fixed, ci, cj, force, rij, cpoint,
-                          width, cutoff, z0, dz, n_species, inv_area, base_down,
+                          width, cutoff, z0, dz, n_species, inv_area, base_mode,
                           tab, m_sub, buf, step, coef, has_coef, out):
     """One snapshot -> adds its x-y averaged profiles to ``out`` (nz, n_columns).
 
@@ -352,9 +498,11 @@ def coarse_grain_snapshot(pos, vel, mass, diameter, species, fixed, ci, cj, forc
     step[:, :] = 0.0
     coef[:, :] = 0.0
     const_base = np.zeros(6)
+    below = np.zeros((buf.shape[0], 6))
     col_c = N_BASIC + 2 * n_species
-    n_up, n_deg = pair_coefficients(pos, fixed, ci, cj, force, rij, cpoint, width, base_down,
-                                    coef, const_base, buf, z0, dz, cutoff, norm, col_c)
+    n_up, n_deg = pair_coefficients(pos, fixed, ci, cj, force, rij, cpoint, width, base_mode,
+                                    coef, const_base, buf, z0, dz, cutoff, norm, col_c,
+                                    tab, m_sub, below)
     for i in range(coef.shape[0]):
         h = 0
         for f_ in range(6):
@@ -368,5 +516,5 @@ def coarse_grain_snapshot(pos, vel, mass, diameter, species, fixed, ci, cj, forc
         has_coef[i] = h
     spread_particles(pos, vel, mass, diameter, species, fixed, coef, has_coef, width, cutoff,
                      norm, z0, dz, n_species, tab, m_sub, buf, step)
-    finalize_snapshot(buf, step, const_base, inv_area, n_species, out)
+    finalize_snapshot(buf, step, const_base, below, inv_area, n_species, out)
     return n_up, n_deg

@@ -19,7 +19,10 @@ Implements Weinhart et al. (2012):
 When the profile dataset carries per-window profiles (``<name>_window``, dim ``time_window``),
 every quantity is also computed per window and its spread reported as ``<name>_std`` (standard
 deviation over windows, ddof = 1; windows with fewer than half the snapshots of the fullest
-window are ignored).
+window are ignored), and the standard error of the run's mean as ``<name>_sem`` = sqrt(g var/N)
+over the N window values with their statistical inefficiency g (batch means; the uncertainty a
+fit should give the run).  ``_sem`` is the within-run part only: runs with other seeds scatter
+more than one run's windows show, above all near hstop and in small boxes.
 """
 
 from __future__ import annotations
@@ -166,6 +169,8 @@ def depth_averages(ds: xr.Dataset, theta_deg: float | None = None, kappa: float 
     data = {k: ((), v, _SCALAR_ATTRS[k]) for k, v in vals.items()}
     wins = _window_profiles(ds, _NEEDED, window_min_fraction)
     if wins:
+        from ..steady.timeseries import standard_error_of_mean
+
         per = [_scalars(z, w, theta_deg, kappa, *bulk_margins) for w in wins]
         for k in vals:
             arr = np.array([p[k] for p in per], dtype=float)
@@ -173,6 +178,10 @@ def depth_averages(ds: xr.Dataset, theta_deg: float | None = None, kappa: float 
             a = dict(_SCALAR_ATTRS[k])
             a["long_name"] = a["long_name"] + ", std over time windows"
             data[k + "_std"] = ((), std, a)
+            a = dict(_SCALAR_ATTRS[k])
+            a["long_name"] = ("standard error of the run mean of " + a["long_name"]
+                              + " (decorrelated time windows)")
+            data[k + "_sem"] = ((), standard_error_of_mean(arr), a)
         data["n_windows"] = ((), len(wins), U.cf(U.DIMENSIONLESS, "time windows used for spreads"))
     out = xr.Dataset(data)
     out.attrs.update(ds.attrs)

@@ -15,9 +15,12 @@ Conventions
 * ``stress_ab`` for ab in xx, yy, zz, xy, xz, yz: force component a, line (branch) direction b;
   the momentum balance of a depth profile involves stress_xz, stress_yz, stress_zz.  The
   antisymmetric partners (yx, zx, zy; tangential forces make them differ by < 5 %) are not
-  computed.  Total = contact (flow-flow pairs, segment r_i -> r_j) + base (flow-base
-  pairs, half-line from r_i through the contact point to infinity, Eq. 27/32) + kinetic
-  (sum m v v g - rho V V per snapshot, i.e. fluctuations about the snapshot's V(z)).
+  computed.  Total = contact (flow-flow pairs, segment r_i -> r_j) + base (flow-base pairs,
+  by default the segment from r_i to the contact point and then straight down into the base:
+  any path from r_i to infinity keeps the momentum balance exact, and this one never enters the
+  flow above the contact and keeps every contact's contribution bounded; see ``base_line`` and
+  physics.md §4) + kinetic (sum m v v g -
+  rho V V per snapshot, i.e. fluctuations about the snapshot's V(z)).
 * Kernel: Gaussian of width w (default 0.25) truncated at ``cutoff`` * w (default 4, where the
   Gaussian has dropped to 3.4e-4 of its peak) and renormalised to unit mass, so mass and
   momentum balance hold exactly.  Profiles are point values at z_k = z_min + k dz.
@@ -49,6 +52,23 @@ DEFAULT_CUTOFF = 4.0
 
 _COMP = ("x", "y", "z")
 
+#: Paths of a flow-base contact's stress (``base_line``) and what each means; the description
+#: is stored in every profile's ``cg_base_line_description`` attribute.
+BASE_LINES = {
+    "contact_then_down": (K.BASE_CONTACT_THEN_DOWN,
+                          "flow-base contact stress spread on the segment from the flow particle's "
+                          "centre to the contact point, then straight down (-z) into the base; "
+                          "exactly zero above the highest flow-base contact (+ kernel cutoff)"),
+    "down": (K.BASE_DOWN, "flow-base contact stress spread straight down (-z) from the flow "
+                          "particle's centre (only the xz, yz, zz components are nonzero)"),
+    "through_contact": (K.BASE_THROUGH_CONTACT,
+                        "half-line from the flow particle's centre through the contact point to "
+                        "infinity (Weinhart et al. 2012 Sec. 3 literally; adds a stress plateau "
+                        "above upward-pointing contacts)"),
+}
+DEFAULT_BASE_LINE = "contact_then_down"
+_BASE_LINE_ALIASES = {"contact": "through_contact"}
+
 SNAPSHOT_KEYS = ("pos", "vel", "mass", "diameter", "species", "fixed", "contact_i", "contact_j",
                  "contact_force", "contact_rij", "contact_point")
 
@@ -71,22 +91,29 @@ class DepthProfileAccumulator:
     n_species : number of flow species (``species`` values 0 .. n_species-1).
     window_length : time-window length for spread estimates (None: one window).
     cutoff : kernel truncation in units of w (default 4).
-    base_line : ``"contact"`` (default, Eq. 32: half-line from r_i through the contact point) or
-        ``"down"`` (half-line straight down from r_i; also exact by Eq. 27, and avoids the
-        stress plateau that an upward half-line leaves above the free surface).
+    base_line : where a flow-base contact's stress goes (:data:`BASE_LINES`; every choice
+        satisfies the momentum balance exactly):
+        ``"contact_then_down"`` (default) the segment from the flow particle's centre to the
+        contact point, then straight down into the base (bounded: the depth integral of the
+        stress is the half-branch virial f_a r_b);
+        ``"down"`` straight down from the flow particle's centre; ``"through_contact"`` (alias
+        ``"contact"``) the literal half-line for every contact, which on a rough base points
+        *up* for flow particles sitting below the base particle they touch and then leaves a
+        stress plateau through the whole flow (kept to reproduce old profiles only).
 
     Only sums are stored (no trajectories); :meth:`state_dict` / :meth:`from_state_dict`
     checkpoint them.
     """
 
     def __init__(self, z_min, z_max, dz, width=DEFAULT_WIDTH, Lx=20.0, Ly=10.0, n_species=1,
-                 window_length=None, cutoff=DEFAULT_CUTOFF, base_line="contact"):
+                 window_length=None, cutoff=DEFAULT_CUTOFF, base_line=DEFAULT_BASE_LINE):
         if dz <= 0 or z_max <= z_min:
             raise ValueError("need dz > 0 and z_max > z_min")
         if width <= 0 or cutoff <= 0:
             raise ValueError("need width > 0 and cutoff > 0")
-        if base_line not in ("contact", "down"):
-            raise ValueError("base_line must be 'contact' or 'down'")
+        base_line = _BASE_LINE_ALIASES.get(base_line, base_line)
+        if base_line not in BASE_LINES:
+            raise ValueError(f"base_line = {base_line!r}: allowed {sorted(BASE_LINES)}")
         if window_length is not None and window_length <= 0:
             raise ValueError("window_length must be positive")
         self.z_min = float(z_min)
@@ -165,7 +192,7 @@ class DepthProfileAccumulator:
         n_up, n_deg = K.coarse_grain_snapshot(
             pos, vel, mass, diameter, species, fixed, ci, cj, force, rij, cpoint,
             self.width, self.cutoff, self.z_min, self.dz, self.n_species,
-            1.0 / (self.Lx * self.Ly), self.base_line == "down",
+            1.0 / (self.Lx * self.Ly), BASE_LINES[self.base_line][0],
             self._tab, self._m_sub, self._buf, self._step, self._coef[:n], self._has[:n],
             win["sums"])
         win["count"] += 1
@@ -298,12 +325,14 @@ class DepthProfileAccumulator:
             "cg_Lx": self.Lx,
             "cg_Ly": self.Ly,
             "cg_base_line": self.base_line,
+            "cg_base_line_description": BASE_LINES[self.base_line][1],
             "cg_stress_sign":
                 "compressive positive (sigma = -sigma_Cauchy of Weinhart 2012 Eq. 32)",
             "cg_n_snapshots": int(count),
             "cg_time_first": float(self.t_first),
             "cg_time_last": float(self.t_last),
             "cg_window_length": -1.0 if self.window_length is None else self.window_length,
+            # flow-base contacts whose contact point lies above the flow particle's centre
             "cg_n_upward_base_contacts": int(self.n_upward_base),
             "cg_n_degenerate_base_contacts": int(self.n_degenerate_base),
         })
@@ -364,7 +393,8 @@ def _fields_from_sums(mean, n_species, small):
 
 def coarse_grain_profiles(snapshots: Iterable[Mapping], z_min, z_max, dz, width=DEFAULT_WIDTH,
                           Lx=None, Ly=None, n_species=1, window_length=None,
-                          cutoff=DEFAULT_CUTOFF, base_line="contact", attrs=None) -> xr.Dataset:
+                          cutoff=DEFAULT_CUTOFF, base_line=DEFAULT_BASE_LINE,
+                          attrs=None) -> xr.Dataset:
     """Depth-profile dataset from saved snapshots.
 
     Each snapshot is a mapping with ``time`` and the :data:`SNAPSHOT_KEYS` arrays (the interface

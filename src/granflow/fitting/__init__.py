@@ -1,8 +1,12 @@
 """Closure fits of Weinhart et al. (2012) §9 and Thornton et al. §6 to a simulation campaign.
 
 Input is a campaign table (:mod:`granflow.fitting.table`, one row per run); each fit returns a
-:class:`FitResult` (params, stderr, error of Eq. 49, n_points, ok, message). Fits that cannot be
-made return ``ok=False`` with NaN parameters.
+:class:`FitResult` (params, stderr, error of Eq. 49, n_points, ok, message) that says what the
+data identify (:mod:`.identify`: per-parameter status and reason, closure status ok / reduced /
+unidentified / misfit / failed, held-out z-scores) and carries its parameter ensemble.  Where
+the full form is not identified a stated reduced form is fitted (:mod:`.forms`); runs are
+weighted by their decorrelated standard errors (:mod:`.lsq`).  Fits that cannot be made return
+``ok=False`` with NaN parameters.
 
 ==========================  ===========================================================
 function                    closure (equation)
@@ -27,6 +31,7 @@ from .bulk import density_eq52, fit_bulk_density, fit_stress_ratio, stress_ratio
 from .flow_rule import fit_flow_rule, friction_closure, froude_eq47, mu_eq50
 from .hstop import (compare_hstop_forms, fit_hstop, fit_hstop_eq38, hstop_eq38, hstop_eq45,
                     hstop_intervals_from_runs, theta_stop_eq38, theta_stop_eq45)
+from .identify import assess
 from .result import FitResult, error_eq49, failed_fit
 from .rheology import fit_mu_I, inertial_number, mu_of_I
 from .segregation import (Ps_teq29, asymmetric_flux_amplitude, compare_segregation_models,
@@ -37,7 +42,7 @@ from .table import (CAMPAIGN_COLUMNS, FLOW_STATES, campaign_table_from_records,
                     empty_campaign_table, select_runs, validate_campaign_table)
 
 __all__ = [
-    "FitResult", "error_eq49", "failed_fit",
+    "FitResult", "error_eq49", "failed_fit", "assess",
     "CAMPAIGN_COLUMNS", "FLOW_STATES", "campaign_table_from_records", "empty_campaign_table",
     "select_runs", "validate_campaign_table",
     "hstop_eq45", "hstop_eq38", "theta_stop_eq45", "theta_stop_eq38", "hstop_intervals_from_runs",

@@ -3,29 +3,153 @@
 :func:`fit_campaign` runs, for each contact law in the table:
 
 * per basal roughness lambda (monodisperse runs, sigma = 1): hstop Eq. (45) and, for comparison,
-  Eq. (38) from the (theta, H, state) runs; the flow rule Eq. (47) with hstop(theta; 1); the
-  friction closure Eq. (50); the shape factor alpha (Eq. 54 for lambda > 2/3, constant for
-  lambda <= 2/3);
+  Eq. (38) from the (theta, H, state) brackets -- every state but "arrested" counts as flowing,
+  "undecided" included (the paper's binary rule, §6); the flow rule Eq. (47) with hstop(theta; 1)
+  and the shape factor alpha (Eq. 54 for lambda > 2/3, constant for lambda <= 2/3) from the
+  steady runs inside (delta1, delta2) of lambda = 1, with standard errors unconditional on the
+  hstop fit (joint bootstrap, :func:`granflow.fitting.flow_rule.joint_bootstrap`); the friction
+  closure Eq. (50) composed from both (joined ensembles);
 * pooled over steady runs with lambda > 0 (as in the paper): bulk density Eq. (52) and stress
   ratio Eq. (53);
-* over runs with a measured Ps: the size-ratio law T-eq. (29), weighted by ``Ps_std`` when given.
+* over bidisperse runs in a steady flow *and* a steady segregated state with a measured Ps: the
+  size-ratio law T-eq. (29).
 
-Fits that cannot be made come back with ``ok=False`` (they are still returned, so a library
-records that they were attempted). The result is a flat list ready for
+Every fit is weighted by the runs' decorrelated standard errors (``<col>_sem``) when the table has
+them, is assessed for identifiability with stated reduced forms (:mod:`.identify`,
+:mod:`.forms`), carries held-out z-scores, and says in ``selection`` which runs it used and why the
+others were left out (generated from the selection actually applied, never written by hand).
+Fits that cannot be made come back with status ``failed`` (they are still returned, so a library
+records that they were attempted).  The result is a flat list ready for
 :func:`granflow.closures.write_library`.
 """
 
 from __future__ import annotations
 
+import math
+from collections import Counter
+
 import numpy as np
+import pandas as pd
 
 from .bulk import fit_bulk_density, fit_stress_ratio
 from .flow_rule import fit_flow_rule, friction_closure
-from .hstop import fit_hstop, fit_hstop_eq38
+from .hstop import fit_hstop, fit_hstop_eq38, hstop_eq45
 from .result import FitResult, failed_fit
 from .segregation import fit_Ps_law
 from .shape_factor import fit_alpha
 from .table import select_runs, validate_campaign_table
+
+#: how each closure treats runs left "undecided" at their cap (stored with the closure)
+UNDECIDED_TREATMENT = {
+    "hstop": "undecided runs count as flowing (binary arrested/flowing rule, §6: they did not "
+             "arrest within their cap)",
+    "steady": "undecided runs are left out (the closure needs a steady flow)",
+    "segregation": "only runs in a steady flow and a steady segregated state enter",
+}
+
+
+def _ids(runs: pd.DataFrame) -> np.ndarray:
+    if "run" in runs.columns:
+        return runs["run"].astype(str).to_numpy()
+    return np.array([f"theta={t:g},H={h:g},lam={lam:g},sigma={s:g}" for t, h, lam, s in
+                     zip(runs["theta"], runs["H"], runs["lam"], runs["sigma"])])
+
+
+#: the columns that identify a run point (replicates share them and differ in seed)
+POINT_COLUMNS = ("contact_law", "lam", "theta", "H", "sigma")
+
+
+def between_seed_scatter(runs: pd.DataFrame, col: str) -> tuple[float, int, float]:
+    """(tau, number of replicate groups, pooled within-run variance) of ``col``.
+
+    Runs of one point with different seeds (replicates) scatter by more than each run's own
+    decorrelated standard error shows: tau^2 = max(0, pooled variance of the replicates about
+    their group means - pooled mean of their squared standard errors).  NaN (and 0 groups)
+    without replicates."""
+    if col not in runs.columns or not len(runs):
+        return math.nan, 0, math.nan
+    v = pd.to_numeric(runs[col], errors="coerce")
+    se = pd.to_numeric(runs.get(f"{col}_sem", pd.Series(np.nan, index=runs.index)),
+                       errors="coerce")
+    frame = runs.loc[:, [c for c in POINT_COLUMNS if c in runs.columns]].copy()
+    frame["_v"], frame["_se2"] = v, se ** 2
+    frame = frame[np.isfinite(frame["_v"])]
+    dof = var = within = 0.0
+    n_groups = 0
+    for _, g in frame.groupby(list(c for c in POINT_COLUMNS if c in frame.columns)):
+        if len(g) < 2:
+            continue
+        n_groups += 1
+        k = len(g) - 1
+        dof += k
+        var += k * float(np.var(g["_v"], ddof=1))
+        w = g["_se2"].to_numpy(float)
+        within += k * float(np.nanmean(w)) if np.isfinite(w).any() else 0.0
+    if not n_groups:
+        return math.nan, 0, math.nan
+    return math.sqrt(max(0.0, (var - within) / dof)), n_groups, within / dof
+
+
+def run_uncertainty(runs: pd.DataFrame, col: str):
+    """(sigma, sigma_parts, note) for fitting ``col``: each run's decorrelated standard error
+    (missing ones: the largest of the others) combined with the between-seed scatter of the
+    replicates when there are any -- sigma^2 = sem^2 + tau^2 -- and the two parts for the
+    variance split of the fitted parameters (:func:`granflow.fitting.lsq.variance_split`)."""
+    sem = _col(runs, f"{col}_sem")
+    if sem is None:
+        return None, None, "unweighted (no per-run standard errors in the table)"
+    good = np.isfinite(sem) & (sem > 0)
+    if not good.any():
+        return None, None, "unweighted (no per-run standard errors in the table)"
+    sem = np.where(good, sem, sem[good].max())
+    tau, n_groups, _ = between_seed_scatter(runs, col)
+    if n_groups == 0 or not math.isfinite(tau):
+        return sem, None, ("weighted by the runs' decorrelated standard errors (within-run "
+                           "only: no replicates, so the scatter between seeds is not measured)")
+    total = np.sqrt(sem ** 2 + tau ** 2)
+    return total, {"within": sem, "between": np.full(sem.shape, tau)}, (
+        f"weighted by the runs' decorrelated standard errors combined with the between-seed "
+        f"scatter {tau:.3g} of {n_groups} replicate group(s)")
+
+
+def _col(runs: pd.DataFrame, name: str):
+    """A numeric column, or None when absent or all-NaN (e.g. no ``_sem`` in an old table)."""
+    if name not in runs.columns:
+        return None
+    v = pd.to_numeric(runs[name], errors="coerce").to_numpy(float)
+    return v if np.isfinite(v).any() else None
+
+
+def _range(values) -> str:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return "none"
+    u = np.unique(v)
+    return ", ".join(f"{x:g}" for x in u) if u.size <= 8 else f"{u.min():g}-{u.max():g}"
+
+
+def describe_selection(what: str, pool: pd.DataFrame, used: np.ndarray, left_out: Counter,
+                       weighting: str) -> str:
+    """One generated sentence: which runs a closure used, their H and theta, why the others of
+    ``pool`` were left out, and how the runs were weighted."""
+    used_runs = pool[used]
+    parts = [f"{what}: {int(used.sum())} of {len(pool)} runs used (H = {_range(used_runs['H'])}; "
+             f"theta = {_range(used_runs['theta'])} deg)"]
+    if "replicate" in used_runs.columns and (used_runs["replicate"].fillna(0) > 0).any():
+        parts[0] += f", {int((used_runs['replicate'].fillna(0) > 0).sum())} of them replicates"
+    if left_out:
+        parts.append("left out: " + ", ".join(f"{n} {why}" for why, n in sorted(left_out.items())))
+    parts.append(weighting)
+    return "; ".join(parts)
+
+
+def _state_counts(runs: pd.DataFrame, keep_states=("steady",)) -> Counter:
+    c = Counter()
+    for st in runs["state"].astype(str):
+        if st not in keep_states:
+            c[f"{st} (state not {'/'.join(keep_states)})"] += 1
+    return c
 
 
 def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 200, seed: int = 0,
@@ -45,44 +169,135 @@ def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 20
         hstops = {}
         for lam in lams:
             runs = select_runs(mono, lam=lam)
-            hstops[lam] = fit_hstop(runs=runs, lam=lam, contact_law=law,
-                                    n_bootstrap=n_bootstrap, seed=seed)
-            results.append(hstops[lam])
-            if include_eq38:
-                results.append(fit_hstop_eq38(runs=runs, lam=lam, contact_law=law,
-                                              n_bootstrap=n_bootstrap, seed=seed))
+            n_und = int((runs["state"] == "undecided").sum())
+            sel = (f"hstop brackets at lambda = {lam:g}, contact law {law}: all {len(runs)} "
+                   f"monodisperse runs (H = {_range(runs['H'])}), arrested vs flowing; "
+                   f"{UNDECIDED_TREATMENT['hstop']} ({n_und} such runs)")
+            for fn in ((fit_hstop, fit_hstop_eq38) if include_eq38 else (fit_hstop,)):
+                r = fn(runs=runs, lam=lam, contact_law=law, n_bootstrap=n_bootstrap, seed=seed)
+                r = r.replace(runs_used=tuple(_ids(runs)), selection=sel)
+                results.append(r)
+                if fn is fit_hstop:
+                    hstops[lam] = r
         hstop1 = next((r for lam, r in hstops.items() if abs(lam - 1.0) < 1e-9), None)
         for lam in lams:
-            steady = select_runs(mono, lam=lam, states="steady")
+            pool = select_runs(mono, lam=lam)
             tmin = next((v for k, v in theta_min.items() if abs(k - lam) < 1e-9), None)
             tmax = next((v for k, v in theta_max.items() if abs(k - lam) < 1e-9), None)
-            if tmin is not None:
-                steady = steady[steady["theta"] > tmin]
-            if tmax is not None:
-                steady = steady[steady["theta"] < tmax]
-            theta, h = steady["theta"].to_numpy(float), steady["h"].to_numpy(float)
-            if hstop1 is None:
-                flow = failed_fit("flow_rule", "Weinhart et al. 2012 Eq. (47)", ("beta", "gamma"),
-                                  "no lambda = 1 runs: hstop(theta; 1) unavailable", 0,
-                                  lam=lam, contact_law=law)
-            else:
-                flow = fit_flow_rule(theta, h, steady["F"].to_numpy(float), hstop1,
-                                     lam=lam, contact_law=law)
-            results.append(flow)
-            if hstop1 is not None:
-                results.append(friction_closure(hstop1, flow, theta=theta, h=h,
-                                                F=steady["F"].to_numpy(float)))
-            results.append(fit_alpha(theta, h, steady["alpha"].to_numpy(float), lam,
-                                     hstop1 if hstop1 is not None and hstop1.ok else None,
-                                     contact_law=law))
-        rough = mono[(mono["state"] == "steady") & (mono["lam"] > 0)]
-        results.append(fit_bulk_density(rough["theta"], rough["rho_c"], contact_law=law))
-        results.append(fit_stress_ratio(rough["theta"], rough["K"], contact_law=law))
+            results.extend(_steady_closures(pool, lam, law, hstop1, tmin, tmax, n_bootstrap,
+                                            seed))
+        rough_pool = mono[mono["lam"] > 0]
+        results.extend(_bulk_closures(rough_pool, law, seed))
         seg = select_runs(table, contact_law=law)
         seg = seg[np.isfinite(seg["Ps"].to_numpy(float))]
         if len(seg):
-            std = seg["Ps_std"].to_numpy(float)
-            results.append(fit_Ps_law(seg["sigma"], seg["Ps"],
-                                      std if np.all(np.isfinite(std) & (std > 0)) else None,
-                                      contact_law=law))
+            results.append(_ps_law(seg, law, seed))
     return results
+
+
+def _steady_closures(pool, lam, law, hstop1, tmin, tmax, n_bootstrap, seed):
+    out = []
+    left = _state_counts(pool)
+    use = (pool["state"] == "steady").to_numpy().copy()
+    th = pool["theta"].to_numpy(float)
+    if tmin is not None:
+        left["below delta3"] += int(np.sum(use & (th <= tmin)))
+        use &= th > tmin
+    if tmax is not None:
+        left["above delta_acc"] += int(np.sum(use & (th >= tmax)))
+        use &= th < tmax
+    if hstop1 is not None and hstop1.state != "failed":
+        hs = hstop_eq45(th, **{k: hstop1.params[k] for k in ("delta1", "delta2", "A")})
+        outside = use & ~(np.isfinite(hs) & (hs > 0))
+        if outside.any():
+            left["outside (delta1, delta2) of hstop(theta; 1)"] += int(outside.sum())
+        use &= np.isfinite(hs) & (hs > 0)
+    for col in ("h", "F", "alpha"):
+        bad = use & ~np.isfinite(pool[col].to_numpy(float))
+        if bad.any():
+            left[f"no measured {col}"] += int(bad.sum())
+            use &= ~bad
+    steady = pool[use]
+    ids = _ids(steady)
+    theta, h, F = (steady[c].to_numpy(float) for c in ("theta", "h", "F"))
+    F_sem, F_parts, F_note = run_uncertainty(steady, "F")
+    a_sem, a_parts, a_note = run_uncertainty(steady, "alpha")
+    what = f"steady runs at lambda = {lam:g}, sigma = 1, contact law {law}"
+    sel_F = describe_selection(f"flow rule from {what}", pool, use, left, F_note)
+    sel_F += "; " + UNDECIDED_TREATMENT["steady"]
+    if hstop1 is None:
+        flow = failed_fit("flow_rule", "Weinhart et al. 2012 Eq. (47)", ("beta", "gamma"),
+                          "no lambda = 1 runs: hstop(theta; 1) unavailable", 0,
+                          lam=lam, contact_law=law)
+    else:
+        flow = fit_flow_rule(theta, h, F, hstop1, lam=lam, contact_law=law, sigma=F_sem,
+                             ids=ids, selection=sel_F, n_bootstrap=n_bootstrap, seed=seed,
+                             sigma_parts=F_parts)
+    flow = _with_selection(flow, sel_F, ids)
+    out.append(flow)
+    if hstop1 is not None:
+        out.append(_with_selection(friction_closure(hstop1, flow, theta=theta, h=h, F=F),
+                                   sel_F, ids))
+    sel_a = describe_selection(f"shape factor from {what}", pool, use, left, a_note)
+    sel_a += "; " + UNDECIDED_TREATMENT["steady"]
+    out.append(_with_selection(
+        fit_alpha(theta, h, steady["alpha"].to_numpy(float), lam,
+                  hstop1 if hstop1 is not None and hstop1.state != "failed" else None,
+                  contact_law=law, sigma=a_sem, ids=ids, selection=sel_a,
+                  n_bootstrap=n_bootstrap, seed=seed, sigma_parts=a_parts), sel_a, ids))
+    return out
+
+
+def _with_selection(r: FitResult, selection: str, ids) -> FitResult:
+    """A fit that could not be made still says which runs were available and why."""
+    if r.selection:
+        return r
+    return r.replace(selection=selection, runs_used=tuple(ids) if r.ok else r.runs_used)
+
+
+def _bulk_closures(pool, law, seed):
+    out = []
+    for kind, col, fn in (("density", "rho_c", fit_bulk_density),
+                          ("stress_ratio", "K", fit_stress_ratio)):
+        left = _state_counts(pool)
+        use = (pool["state"] == "steady").to_numpy().copy()
+        bad = use & ~np.isfinite(pool[col].to_numpy(float))
+        if bad.any():
+            left[f"no measured {col} (flow too thin for the bulk window)" if col == "rho_c"
+                 else f"no measured {col}"] += int(bad.sum())
+            use &= ~bad
+        runs = pool[use]
+        sem, parts, note = run_uncertainty(runs, col)
+        sel = describe_selection(
+            f"{'bulk density' if kind == 'density' else 'stress ratio'} from steady runs with "
+            f"lambda > 0 (lambda = {_range(pool['lam'])}), sigma = 1, contact law {law}", pool,
+            use, left, note) + "; " + UNDECIDED_TREATMENT["steady"]
+        out.append(_with_selection(
+            fn(runs["theta"].to_numpy(float), runs[col].to_numpy(float), sigma=sem,
+               contact_law=law, ids=_ids(runs), selection=sel, seed=seed, sigma_parts=parts),
+            sel, _ids(runs)))
+    return out
+
+
+def _ps_law(seg, law, seed):
+    left = _state_counts(seg)
+    use = (seg["state"] == "steady").to_numpy().copy()
+    if "segregation_state" in seg.columns:
+        ss = seg["segregation_state"].astype(str).to_numpy()
+        drifting = use & (ss != "steady")
+        if drifting.any():
+            left["segregated state not steady (drifting)"] += int(drifting.sum())
+        use &= ss == "steady"
+    mono = use & (seg["sigma"].to_numpy(float) >= 1.0 - 1e-9)
+    if mono.any():
+        left["sigma = 1 (no-segregation control)"] += int(mono.sum())
+        use &= ~mono
+    runs = seg[use]
+    sem, parts, note = run_uncertainty(runs, "Ps")
+    sel = describe_selection(
+        f"Ps(sigma) law from bidisperse runs of contact law {law} (sigma = {_range(seg['sigma'])})",
+        seg, use, left, note) + "; " + UNDECIDED_TREATMENT["segregation"]
+    return _with_selection(
+        fit_Ps_law(runs["sigma"].to_numpy(float), runs["Ps"].to_numpy(float), sem,
+                   contact_law=law, ids=_ids(runs), selection=sel, seed=seed,
+                   sigma_parts=parts), sel, _ids(runs))

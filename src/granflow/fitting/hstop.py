@@ -23,8 +23,9 @@ that objective is flat for every curve crossing all intervals, a small tie-break
 intervals among those; ``tie_break=0`` gives the paper's objective alone.
 
 Uncertainties are from a bootstrap over intervals (``stderr_method="bootstrap"``): the intervals
-are resampled with replacement ``n_bootstrap`` times and refitted; stderr is the standard
-deviation of the refitted parameters. The error measure is Eq. (49) of the horizontal distances
+are resampled with replacement ``n_bootstrap`` times and refitted; stderr is half the central
+68 % range of the refitted parameters (robust to the few resamples that drop the thinnest
+brackets, on which delta2 rests), and the refits are kept as the closure's ensemble. The error measure is Eq. (49) of the horizontal distances
 (degrees). The paper fitted Eq. (38) by the vertical distance; here both forms use the horizontal
 distance so that their errors compare like with like.
 """
@@ -37,13 +38,19 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 
-from .result import FitResult, error_eq49, failed_fit
+from .result import FitResult, bootstrap_stderr, error_eq49, failed_fit
 
 EQ45 = "Weinhart et al. 2012 Eq. (45)"
 EQ38 = "Weinhart et al. 2012 Eq. (38)"
 HSTOP_PARAMS = ("delta1", "delta2", "A")
 INTERVAL_COLUMNS = ("H", "theta_arrested_max", "theta_flowing_min")
-FLOWING_STATES = ("steady", "accelerating", "layered", "oscillating")
+#: states counted as flowing for the demarcation (the paper's binary rule, §6: a run is arrested
+#: when E_kin/E_ela falls below 1e-5, otherwise flowing -- including runs left "undecided" at
+#: their cap, which did not arrest)
+FLOWING_STATES = ("steady", "accelerating", "layered", "oscillating", "undecided", "flowing")
+#: optimiser bounds of (delta1, delta2 - delta1, A)
+_LOWER = (0.0, 1e-3, 1e-6)
+_UPPER = (89.0, 60.0, 1e5)
 
 
 # ---------------------------------------------------------------------------- closed forms
@@ -97,7 +104,7 @@ def hstop_intervals_from_runs(theta, H=None, state=None) -> pd.DataFrame:
 
     Accepts arrays ``theta, H, state`` or a single DataFrame (campaign table or any frame with
     columns theta, H, state) as first argument. 'arrested' runs are arrested; steady, accelerating,
-    layered and oscillating runs count as flowing. A height with only arrested (only flowing)
+    layered, oscillating and undecided runs count as flowing (:data:`FLOWING_STATES`). A height with only arrested (only flowing)
     runs gets ``theta_flowing_min = +inf`` (``theta_arrested_max = -inf``): a one-sided interval.
     If the largest arrested angle exceeds the smallest flowing one (non-monotone outcome), the two
     are swapped so the interval still brackets the demarcation; ``n_inverted`` counts them.
@@ -168,7 +175,7 @@ def _solve(H, lo, hi, tie, theta_stop, d, starts):
         try:
             sol = optimize.least_squares(
                 _residuals, p0, args=(H, lo, hi, two_sided, tie, theta_stop, d),
-                bounds=([0.0, 1e-3, 1e-6], [89.0, 60.0, 1e5]), x_scale=[1.0, 1.0, max(p0[2], 1e-3)],
+                bounds=(list(_LOWER), list(_UPPER)), x_scale=[1.0, 1.0, max(p0[2], 1e-3)],
                 method="trf", xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=1000)
         except (ValueError, FloatingPointError):
             continue
@@ -230,15 +237,20 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
         sol = _solve(H[idx], lo[idx], hi[idx], tie_break, theta_stop, d, [best.x])
         if sol is not None and sol.success:
             boot.append([sol.x[0], sol.x[0] + sol.x[1], sol.x[2]])
-    boot = np.asarray(boot)
+    boot = np.asarray(boot).reshape(-1, 3)
     if len(boot) >= 10:
-        sd = boot.std(axis=0, ddof=1)
-        stderr = dict(zip(HSTOP_PARAMS, map(float, sd)))
+        stderr = {k: bootstrap_stderr(boot[:, j]) for j, k in enumerate(HSTOP_PARAMS)}
         boot_msg = f"bootstrap: {len(boot)} of {n_bootstrap} refits"
     else:
         stderr = {k: math.nan for k in HSTOP_PARAMS}
         boot_msg = f"bootstrap failed ({len(boot)} usable refits); stderr NaN"
     finite = np.concatenate([lo[np.isfinite(lo)], hi[np.isfinite(hi)]])
+    from .identify import at_bound
+
+    at_b = [name for name, v, lo_b, hi_b in (("delta1", delta1, _LOWER[0], _UPPER[0]),
+                                             ("delta2", width, _LOWER[1], _UPPER[1]),
+                                             ("A", A, _LOWER[2], _UPPER[2]))
+            if at_bound(v, lo_b, hi_b)]
     return FitResult(
         kind=kind, equation=equation, params=params, stderr=stderr, error=error_eq49(dist),
         n_points=int(n), ok=True,
@@ -249,8 +261,48 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
         valid_range={"theta": (float(finite.min()), float(finite.max())),
                      "h": (float(H.min()), float(H.max()))},
         coords={k: v for k, v in coords.items() if v is not None},
-        extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break},
+        extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break,
+               "at_bound": at_b,
+               "intervals": {"H": H.tolist(), "lo": lo.tolist(), "hi": hi.tolist()}},
+        ensemble=tuple(tuple(map(float, row)) for row in boot),
     )
+
+
+def _heldout(result: FitResult, theta_stop, tie_break, d) -> FitResult:
+    """Leave-one-out z-scores of the two-sided brackets: each bracket is left out, the curve is
+    refitted to the others and its theta_stop(H) compared with the bracket's midpoint, with the
+    bracket's own uncertainty (uniform: width / sqrt 12) and the curve's (bootstrap ensemble of
+    the full fit at that H): z = (theta_pred - mid) / sqrt(var_pred + width^2 / 12)."""
+    from .identify import apply_heldout
+
+    iv = result.extra.get("intervals")
+    if result.status == "failed" or not iv:
+        return result
+    H, lo, hi = (np.asarray(iv[k], dtype=float) for k in ("H", "lo", "hi"))
+    two = np.isfinite(lo) & np.isfinite(hi)
+    ens = result.ensemble_array()
+    z = {}
+    for i in np.nonzero(two)[0]:
+        keep = np.ones(H.size, bool)
+        keep[i] = False
+        key = f"H={H[i]:g}"
+        if int((two & keep).sum()) < 3:
+            z[key] = math.nan
+            continue
+        p0 = [result.params["delta1"], result.params["delta2"] - result.params["delta1"],
+              result.params["A"]]
+        sol = _solve(H[keep], lo[keep], hi[keep], tie_break, theta_stop, d, [np.array(p0)])
+        if sol is None or not sol.success:
+            z[key] = math.nan
+            continue
+        pred = float(theta_stop(H[i], sol.x[0], sol.x[0] + sol.x[1], sol.x[2], d))
+        var = 0.0
+        if len(ens) >= 10:
+            th = np.array([theta_stop(H[i], e[0], e[1], e[2], d) for e in ens])
+            var = float(np.nanvar(th, ddof=1))
+        mid, w = 0.5 * (lo[i] + hi[i]), hi[i] - lo[i]
+        z[key] = float((pred - mid) / math.sqrt(var + w * w / 12.0)) if var + w * w > 0 else math.nan
+    return apply_heldout(result, z)
 
 
 def fit_hstop(intervals=None, *, runs=None, lam=None, contact_law=None, n_bootstrap: int = 200,
@@ -267,16 +319,22 @@ def fit_hstop(intervals=None, *, runs=None, lam=None, contact_law=None, n_bootst
         ``H`` column (filling heights, as in the paper's search).
     Returns a FitResult with params delta1, delta2 (degrees), A (in d), bootstrap stderr.
     """
-    return _fit_hstop("eq45", intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
-                      min_intervals)
+    from .identify import assess
+
+    res = _fit_hstop("eq45", intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
+                     min_intervals)
+    return _heldout(assess(res), theta_stop_eq45, tie_break, d)
 
 
 def fit_hstop_eq38(intervals=None, *, runs=None, lam=None, contact_law=None,
                    n_bootstrap: int = 200, seed: int = 0, tie_break: float = 1e-3,
                    d: float = 1.0, min_intervals: int = 4) -> FitResult:
     """Fit the exponential form Eq. (38) to the same brackets, for comparison with Eq. (45)."""
-    return _fit_hstop("eq38", intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
-                      min_intervals)
+    from .identify import assess
+
+    res = _fit_hstop("eq38", intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
+                     min_intervals)
+    return _heldout(assess(res), theta_stop_eq38, tie_break, d)
 
 
 def compare_hstop_forms(intervals=None, *, runs=None, **kwargs) -> pd.DataFrame:

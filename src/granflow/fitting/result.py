@@ -63,6 +63,26 @@ class FitResult:
         Where the fit belongs: any of ``lam`` (basal roughness lambda), ``contact_law``, ``sigma``.
     extra : dict
         Fit-specific additions (confidence intervals, model comparisons, ...).
+    status : str
+        What the data identify (:mod:`granflow.fitting.identify`): ``"ok"`` (every parameter of
+        the full form identified), ``"reduced"`` (a stated reduced form is identified and is
+        what is stored), ``"unidentified"``, ``"misfit"`` (the fit does not describe its own
+        data: held-out |z| > 3 or chi-square), ``"failed"`` (no fit could be made).  ``ok`` is
+        True exactly for ``"ok"`` and ``"reduced"``.  Empty until assessed.
+    form : str
+        Which form of the closure the params belong to (``"full"`` or a reduced form's name).
+    param_status, param_reason : dict
+        Per parameter: ``identified`` / ``unidentified`` / ``fixed`` / ``not_in_form`` and why.
+    ensemble : tuple
+        Parameter samples (tuple of tuples, one per sample, in ``params`` order): a bootstrap
+        ensemble or draws from the covariance (``stderr_method`` says which).  Evaluators
+        propagate it to the uncertainty of an evaluated value.
+    diagnostics : dict
+        chi-square, dof, p-value, Birge ratio, largest parameter correlation, held-out z-scores.
+    runs_used : tuple
+        Identifiers of the runs that entered the fit.
+    selection : str
+        Which runs were used and why (generated from the selection actually applied).
     """
 
     kind: str
@@ -78,6 +98,29 @@ class FitResult:
     valid_range: dict = field(default_factory=dict)
     coords: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    status: str = ""
+    form: str = "full"
+    param_status: dict = field(default_factory=dict)
+    param_reason: dict = field(default_factory=dict)
+    ensemble: tuple = ()
+    diagnostics: dict = field(default_factory=dict)
+    runs_used: tuple = ()
+    selection: str = ""
+
+    @property
+    def state(self) -> str:
+        """``status`` when assessed, else ``"ok"``/``"failed"`` from ``ok``."""
+        return self.status or ("ok" if self.ok else "failed")
+
+    def ensemble_array(self) -> np.ndarray:
+        """The ensemble as an (n_samples, n_params) float array (params order)."""
+        if not self.ensemble:
+            return np.zeros((0, len(self.params)))
+        return np.asarray(self.ensemble, dtype=float).reshape(len(self.ensemble), -1)
+
+    def replace(self, **changes) -> "FitResult":
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
 
     def __getitem__(self, name: str) -> float:
         return self.params[name]
@@ -99,7 +142,9 @@ def failed_fit(kind: str, equation: str, param_names, message: str, n_points: in
     return FitResult(kind=kind, equation=equation, params=dict(nan), stderr=dict(nan),
                      error=math.nan, n_points=int(n_points), ok=False, message=message,
                      stderr_method=stderr_method,
-                     coords={k: v for k, v in coords.items() if v is not None})
+                     coords={k: v for k, v in coords.items() if v is not None},
+                     status="failed", param_status={n: "not_fitted" for n in param_names},
+                     param_reason={n: message for n in param_names})
 
 
 def data_range(values) -> tuple[float, float]:
@@ -128,3 +173,16 @@ def finite_mask(*arrays) -> np.ndarray:
     for a in arrays:
         mask &= np.isfinite(a)
     return mask
+
+
+def bootstrap_stderr(samples) -> float:
+    """Robust bootstrap standard error: half the central 68 % (16th-84th percentile) range of the
+    finite samples (equal to the standard deviation for a normal distribution, and not blown
+    up by the few resamples that leave out the data a parameter rests on); NaN for < 10."""
+    x = np.asarray(samples, dtype=float).ravel()
+    x = x[np.isfinite(x)]
+    if x.size < 10:
+        return math.nan
+    q16, q84 = np.percentile(x, [15.865, 84.135])
+    return float(0.5 * (q84 - q16))
+

@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 from scipy import integrate, optimize, special, stats
 
+from .forms import Form, _parts, fit_forms
 from .result import FitResult, covariance_stderr, data_range, error_eq49, failed_fit, finite_mask
 
 TEQ28 = "Thornton et al. T-eq. (28)"
@@ -245,39 +246,47 @@ def Ps_teq29(sigma, Pmax, k):
     return out[()] if out.ndim == 0 else out
 
 
-def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int = 3) -> FitResult:
+def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int = 3, ids=None,
+               selection: str = "", seed: int = 0, sigma_parts=None) -> FitResult:
     """Fit T-eq. (29) to per-run Peclet numbers Ps at size ratios sigma.
 
-    With ``Ps_stderr`` the points are weighted by it and the covariance is absolute; otherwise
-    scaled by the residual variance.
+    ``Ps_stderr``: each run's standard error of Ps (from decorrelated windows); the points are
+    weighted by it (absolute covariance, inflated by the Birge ratio when the scatter exceeds
+    it).  While Ps is still linear in 1/sigma - 1 the saturation Pmax and the rate k are not
+    identified separately (only their product, the initial slope): the fit then falls back to
+    the reduced form Ps = slope (1/sigma - 1) over the fitted range (:mod:`.forms`) and states
+    what the data do show about Pmax, a lower bound ``extra["Pmax_lower_bound"]`` =
+    max_i(Ps_i - 1.645 s_i) (one-sided 95 %: T-eq. 29 never exceeds Pmax).
     """
     coords = dict(contact_law=contact_law)
-    names = ("Pmax", "k")
+    names = ("Pmax", "k", "slope")
     sigma, Ps = (np.asarray(x, dtype=float).ravel() for x in (sigma, Ps))
+    ids = np.asarray(ids if ids is not None else np.arange(sigma.size)).astype(str)
     m = finite_mask(sigma, Ps) & (sigma > 0) & (sigma < 1)
-    s = None
-    if Ps_stderr is not None:
-        s = np.asarray(Ps_stderr, dtype=float).ravel()
-        m &= np.isfinite(s) & (s > 0)
+    s = None if Ps_stderr is None else np.asarray(Ps_stderr, dtype=float).ravel()
     n = int(m.sum())
-    if n < min_points:
+    if n < 2:
         return failed_fit("Ps_law", TEQ29, names, f"too few size ratios: {n}, need {min_points}",
                           n, **coords)
+    from .lsq import usable_sigma
+
     x, y = sigma[m], Ps[m]
-    s = None if s is None else s[m]
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", optimize.OptimizeWarning)
-            popt, pcov = optimize.curve_fit(Ps_teq29, x, y, p0=[float(np.max(y)) * 1.1, 2.0],
-                                            sigma=s, absolute_sigma=s is not None,
-                                            bounds=([0.0, 0.0], [1e4, 1e3]), maxfev=20000)
-    except (RuntimeError, ValueError, optimize.OptimizeWarning) as exc:
-        return failed_fit("Ps_law", TEQ29, names, f"fit failed: {exc}", n, **coords)
-    params = dict(zip(names, map(float, popt)))
-    return FitResult(
-        kind="Ps_law", equation=TEQ29, params=params, stderr=covariance_stderr(pcov, names),
-        error=error_eq49(y - Ps_teq29(x, **params)), n_points=n, ok=True,
-        message=f"fitted {n} runs" + ("; weighted by Ps stderr" if s is not None else ""),
-        error_measure="Eq. (49) of Ps - Ps_fit", valid_range={"sigma": data_range(x)},
-        coords={k: v for k, v in coords.items() if v is not None},
-    )
+    s = None if s is None else usable_sigma(s[m], n)
+    err = np.zeros_like(y) if s is None else s
+    lower = float(np.max(y - 1.645 * err))
+    forms = [
+        Form("teq29", Ps_teq29, ("Pmax", "k"),
+             lambda xx, yy: [float(np.max(yy)) * 1.1, 2.0],
+             "Ps = Pmax (1 - exp(-k (1/sigma - 1)))",
+             bounds={"Pmax": (0.0, 1e4), "k": (0.0, 1e3)}, min_points=min_points),
+        Form("linear", lambda xx, a: a * (1.0 / xx - 1.0), ("slope",),
+             lambda xx, yy: [float(np.sum(yy * (1 / xx - 1)) / np.sum((1 / xx - 1) ** 2))],
+             "Ps = slope (1/sigma - 1) over the fitted range: Ps has not saturated, so Pmax and "
+             "k are not identified separately; Pmax_lower_bound says what the data show",
+             min_points=min_points),
+    ]
+    return fit_forms("Ps_law", TEQ29, names, forms, x, y, sigma=s, ids=ids[m], coords=coords,
+                     valid_range={"sigma": data_range(x)},
+                     extra={"Pmax_lower_bound": lower},
+                     error_measure="Eq. (49) of Ps - Ps_fit", selection=selection, seed=seed,
+                     sigma_parts=_parts(sigma_parts, m))

@@ -14,8 +14,9 @@
   and 0.16 + 0.84 (3/2)(1 - (1 - z/h)^2) gives 1.141 for lambda = 1/2 (Table 2: 1.201, 1.142),
   so those forms are used. :func:`fit_alpha_constant` fits the constant to measured alphas.
 
-Fits: d_lambda by scipy.optimize.curve_fit (stderr from the covariance matrix); the constant by
-the sample mean (stderr = standard error of the mean). Error: Eq. (49) of alpha - alpha_fit.
+Fits: weighted least squares (:mod:`.forms`): d_lambda with a joint bootstrap over the hstop
+fit (unconditional stderr), falling back to a constant alpha when d_lambda is not identified;
+the constant of Eq. (55) as a weighted mean. Error: Eq. (49) of alpha - alpha_fit.
 """
 
 from __future__ import annotations
@@ -24,10 +25,11 @@ import math
 
 import numpy as np
 import pandas as pd
-from scipy import integrate, optimize
+from scipy import integrate
 
 from .hstop import HSTOP_PARAMS, hstop_eq45
-from .result import FitResult, covariance_stderr, data_range, error_eq49, failed_fit, finite_mask
+from .forms import Form, _parts, fit_forms
+from .result import FitResult, data_range, failed_fit, finite_mask
 
 EQ54 = "Weinhart et al. 2012 Eq. (54)"
 EQ55 = "Weinhart et al. 2012 Eq. (55)"
@@ -109,79 +111,117 @@ def alpha_eq55(lam: float, n: int = 2001) -> float:
 
 
 def fit_alpha_basal_layer(theta, h, alpha, hstop1, *, lam=None, contact_law=None,
-                          min_points: int = 2, d: float = 1.0) -> FitResult:
+                          min_points: int = 2, d: float = 1.0, sigma=None, ids=None,
+                          selection: str = "", n_bootstrap: int = 200, seed: int = 0,
+                          sigma_parts=None) -> FitResult:
     """Fit d_lambda of Eq. (54) to measured alpha of steady runs (theta in degrees, h in d).
 
-    ``hstop1``: FitResult (or mapping delta1, delta2, A) of hstop(theta; lambda = 1).
-    Runs outside (delta1, delta2) of lambda = 1 are dropped.
+    ``hstop1``: FitResult (or mapping delta1, delta2, A) of hstop(theta; lambda = 1); with a
+    bootstrap ensemble the stderr of d_lambda is unconditional (joint bootstrap, see
+    :func:`granflow.fitting.flow_rule.joint_bootstrap`).  Runs outside (delta1, delta2) of
+    lambda = 1 are dropped.  ``sigma``: standard errors of alpha.  When d_lambda is not
+    identified the reduced form is a constant alpha over the fitted range (as Eq. 55 for
+    smooth bases).
     """
+    from .flow_rule import joint_bootstrap
+
     coords = dict(lam=lam, contact_law=contact_law)
+    h1 = hstop1
     if isinstance(hstop1, FitResult):
-        if not hstop1.ok:
+        if hstop1.state == "failed":
             return failed_fit("alpha", EQ54, ALPHA_PARAMS, "hstop(theta; 1) fit is not usable",
                               0, **coords)
         hstop1 = hstop1.params
     p1 = {k: float(hstop1[k]) for k in HSTOP_PARAMS}
     theta, h, alpha = (np.asarray(x, dtype=float).ravel() for x in (theta, h, alpha))
+    ids = np.asarray(ids if ids is not None else np.arange(theta.size)).astype(str)
     hs = hstop_eq45(theta, d=d, **p1)
     m = finite_mask(theta, h, alpha) & np.isfinite(hs) & (hs > 0)
     n = int(m.sum())
     if n < min_points:
         return failed_fit("alpha", EQ54, ALPHA_PARAMS, f"too few steady runs: {n}, need "
                           f"{min_points}", n, **coords)
-    try:
-        popt, pcov = optimize.curve_fit(lambda x, dl: alpha_eq54(h[m], hs[m], dl), np.arange(n),
-                                        alpha[m], p0=[5.0], bounds=([0.0], [1e4]))
-    except (RuntimeError, ValueError) as exc:
-        return failed_fit("alpha", EQ54, ALPHA_PARAMS, f"fit failed: {exc}", n, **coords)
-    resid = alpha[m] - alpha_eq54(h[m], hs[m], popt[0])
-    return FitResult(
-        kind="alpha", equation=EQ54, params={"d_lambda": float(popt[0]), "alpha_constant": math.nan},
-        stderr={"d_lambda": covariance_stderr(pcov, ["d_lambda"])["d_lambda"],
-                "alpha_constant": math.nan},
-        error=error_eq49(resid), n_points=n, ok=True, message=f"fitted {n} steady runs",
-        error_measure="Eq. (49) of alpha - alpha_fit",
-        valid_range={"theta": data_range(theta[m]), "h": data_range(h[m])},
-        coords={k: v for k, v in coords.items() if v is not None}, extra={"hstop1": p1},
-    )
+    th_m, h_m, y = theta[m], h[m], alpha[m]
+    x = np.vstack([h_m, hs[m]])
+    s = None if sigma is None else np.asarray(sigma, dtype=float).ravel()[m]
+    forms = [
+        Form("eq54", lambda xx, dl: alpha_eq54(xx[0], xx[1], dl), ("d_lambda",),
+             lambda xx, yy: [5.0], "Eq. (54) basal-layer model, b = d_lambda hstop(theta; 1)/h",
+             bounds={"d_lambda": (0.0, 1e4)}, min_points=min_points),
+        Form("constant", lambda xx, a: a + 0.0 * xx[0], ("alpha_constant",),
+             lambda xx, yy: [float(np.mean(yy))],
+             "alpha = constant over the fitted range (d_lambda not identified)",
+             min_points=max(min_points, 3)),
+    ]
+
+    def x_of(p):
+        hsb = hstop_eq45(th_m, *p, d)
+        return np.vstack([h_m, np.where(np.isfinite(hsb) & (hsb > 0), hsb, np.nan)])
+
+    boot = None
+    if isinstance(h1, FitResult) and h1.ensemble and n_bootstrap > 0:
+        def boot(form, lsq):
+            if form.name == "constant":  # does not depend on hstop: plain case bootstrap
+                return _case_bootstrap_mean(y, n_bootstrap, seed)
+            return joint_bootstrap(form, x_of, y, h1, s, n_bootstrap, seed)
+    return fit_forms("alpha", EQ54, ALPHA_PARAMS, forms, x, y, sigma=s, ids=ids[m],
+                     coords=coords, structure_x=h_m / hs[m],
+                     valid_range={"theta": data_range(th_m), "h": data_range(h_m)},
+                     extra={"hstop1": p1}, error_measure="Eq. (49) of alpha - alpha_fit",
+                     selection=selection, seed=seed, bootstrap=boot,
+                     sigma_parts=_parts(sigma_parts, m))
+
+
+def _case_bootstrap_mean(y, n_boot, seed):
+    rng = np.random.default_rng(seed)
+    return tuple((float(np.mean(y[rng.integers(0, y.size, y.size)])),) for _ in range(n_boot))
 
 
 def fit_alpha_constant(alpha, *, theta=None, h=None, lam=None, contact_law=None,
-                       min_points: int = 2) -> FitResult:
-    """Constant alpha(lambda) for smooth bases (lambda <= 2/3): the mean of measured alpha.
-
-    stderr is the standard error of the mean (``stderr_method = "standard error of the mean"``).
-    ``theta`` and ``h`` only set the valid range.
+                       min_points: int = 2, sigma=None, ids=None, selection: str = "",
+                       seed: int = 0, sigma_parts=None) -> FitResult:
+    """Constant alpha(lambda) for smooth bases (lambda <= 2/3, Eq. 55): the weighted mean of
+    measured alpha (unweighted without ``sigma``), its standard error from the (Birge-inflated)
+    covariance.  ``theta`` and ``h`` set the valid range.
     """
     coords = dict(lam=lam, contact_law=contact_law)
     alpha = np.asarray(alpha, dtype=float).ravel()
+    n_all = alpha.size
+    theta = np.full(n_all, np.nan) if theta is None else np.asarray(theta, float).ravel()
+    h = np.full(n_all, np.nan) if h is None else np.asarray(h, float).ravel()
+    ids = np.asarray(ids if ids is not None else np.arange(n_all)).astype(str)
     m = np.isfinite(alpha)
     n = int(m.sum())
     if n < min_points:
         return failed_fit("alpha", EQ55, ALPHA_PARAMS, f"too few steady runs: {n}, need "
                           f"{min_points}", n, "standard error of the mean", **coords)
-    mean = float(alpha[m].mean())
     rng = {}
-    if theta is not None:
-        rng["theta"] = data_range(np.asarray(theta, float).ravel()[m])
-    if h is not None:
-        rng["h"] = data_range(np.asarray(h, float).ravel()[m])
-    return FitResult(
-        kind="alpha", equation=EQ55, params={"d_lambda": math.nan, "alpha_constant": mean},
-        stderr={"d_lambda": math.nan, "alpha_constant": float(alpha[m].std(ddof=1) / math.sqrt(n))},
-        error=error_eq49(alpha[m] - mean), n_points=n, ok=True,
-        message=f"mean of {n} steady runs", stderr_method="standard error of the mean",
-        error_measure="Eq. (49) of alpha - alpha_constant", valid_range=rng,
-        coords={k: v for k, v in coords.items() if v is not None},
-    )
+    if np.isfinite(theta[m]).any():
+        rng["theta"] = data_range(theta[m])
+    if np.isfinite(h[m]).any():
+        rng["h"] = data_range(h[m])
+    s = None if sigma is None else np.asarray(sigma, dtype=float).ravel()[m]
+    forms = [Form("eq55", lambda xx, a: a + 0.0 * xx, ("alpha_constant",),
+                  lambda xx, yy: [float(np.mean(yy))], "constant alpha(lambda) (Eq. 55)",
+                  min_points=min_points)]
+    sx = theta[m] if np.isfinite(theta[m]).all() else np.zeros(n)  # zeros: no structure test
+    return fit_forms("alpha", EQ55, ALPHA_PARAMS, forms, np.arange(n, dtype=float), alpha[m],
+                     sigma=s, ids=ids[m], coords=coords, valid_range=rng, structure_x=sx,
+                     error_measure="Eq. (49) of alpha - alpha_constant", selection=selection,
+                     seed=seed, sigma_parts=_parts(sigma_parts, m))
 
 
 def fit_alpha(theta, h, alpha, lam: float, hstop1=None, *, contact_law=None,
-              constant_up_to: float = 2.0 / 3.0) -> FitResult:
+              constant_up_to: float = 2.0 / 3.0, sigma=None, ids=None, selection: str = "",
+              n_bootstrap: int = 200, seed: int = 0, sigma_parts=None) -> FitResult:
     """alpha closure for basal roughness ``lam``: constant for lam <= 2/3, Eq. (54) otherwise."""
     if lam <= constant_up_to + 1e-9:
-        return fit_alpha_constant(alpha, theta=theta, h=h, lam=lam, contact_law=contact_law)
+        return fit_alpha_constant(alpha, theta=theta, h=h, lam=lam, contact_law=contact_law,
+                                  sigma=sigma, ids=ids, selection=selection, seed=seed,
+                                  sigma_parts=sigma_parts)
     if hstop1 is None:
         return failed_fit("alpha", EQ54, ALPHA_PARAMS, "Eq. (54) needs hstop(theta; 1)", 0,
                           lam=lam, contact_law=contact_law)
-    return fit_alpha_basal_layer(theta, h, alpha, hstop1, lam=lam, contact_law=contact_law)
+    return fit_alpha_basal_layer(theta, h, alpha, hstop1, lam=lam, contact_law=contact_law,
+                                 sigma=sigma, ids=ids, selection=selection,
+                                 n_bootstrap=n_bootstrap, seed=seed, sigma_parts=sigma_parts)

@@ -16,6 +16,10 @@ lam            1          basal roughness lambda = d_base / d_flow (0 = flat wal
 sigma          1          size ratio d_small / d_large (1 for monodisperse runs)
 contact_law    --         ``linear`` / ``hertzian`` / ``plastic`` (free string)
 state          --         ``arrested`` / ``steady`` / ``accelerating`` / ``layered`` / ``oscillating``
+                          / ``undecided`` (cap reached before the classifier could decide; each
+                          closure states how it treats these runs) / ``flowing`` (an hstop
+                          bracket run stopped once decisively not arresting: flowing for hstop,
+                          no steady averages)
 h              d          flow height, Eq. (42)
 u_bar          sqrt(g d)  depth-averaged velocity, Eq. (33)
 F              1          Froude number u_bar / sqrt(g cos(theta) h)
@@ -27,7 +31,13 @@ Ps             1          segregation Peclet number (NaN for non-segregation run
 phi0           1          mean small-particle volume fraction (NaN for non-segregation runs)
 <col>_std      as <col>   spread (standard deviation over the averaging window) of each
                           measured column: h, u_bar, F, alpha, K, rho_bar, rho_c, Ps, phi0
+<col>_sem      as <col>   standard error of the run's mean from decorrelated time windows
+                          (sqrt(g var / N)); the per-run uncertainty the fits use
 =============  =========  =================================================================
+
+Optional extra columns used by the fits when present: ``run`` (run identifier, listed in each
+closure's ``runs_used``) and ``segregation_state`` (``steady`` / ``drifting`` for bidisperse
+runs: only steady segregated states enter the Ps(sigma) law).
 
 Measured columns may be NaN where not applicable (e.g. ``u_bar`` of an arrested run).
 """
@@ -46,9 +56,11 @@ INPUT_COLUMNS = ("theta", "H", "lam", "sigma", "contact_law", "state")
 #: Measured (output) columns; each also has a ``<col>_std`` spread column.
 MEASURED_COLUMNS = ("h", "u_bar", "F", "alpha", "K", "rho_bar", "rho_c", "Ps", "phi0")
 STD_COLUMNS = tuple(f"{c}_std" for c in MEASURED_COLUMNS)
+SEM_COLUMNS = tuple(f"{c}_sem" for c in MEASURED_COLUMNS)
 STRING_COLUMNS = ("contact_law", "state")
-CAMPAIGN_COLUMNS = INPUT_COLUMNS + MEASURED_COLUMNS + STD_COLUMNS
-FLOW_STATES = ("arrested", "steady", "accelerating", "layered", "oscillating")
+CAMPAIGN_COLUMNS = INPUT_COLUMNS + MEASURED_COLUMNS + STD_COLUMNS + SEM_COLUMNS
+FLOW_STATES = ("arrested", "steady", "accelerating", "layered", "oscillating", "undecided",
+               "flowing")
 
 #: CF units and long names of each column (used when the table is stored in a library).
 COLUMN_ATTRS = {
@@ -72,6 +84,10 @@ for _c in MEASURED_COLUMNS:
     _a = dict(COLUMN_ATTRS[_c])
     _a["long_name"] = "spread (standard deviation) of " + _a["long_name"]
     COLUMN_ATTRS[f"{_c}_std"] = _a
+    _a = dict(COLUMN_ATTRS[_c])
+    _a["long_name"] = ("standard error of the run mean (decorrelated time windows) of "
+                       + _a["long_name"])
+    COLUMN_ATTRS[f"{_c}_sem"] = _a
 
 
 def empty_campaign_table() -> pd.DataFrame:
@@ -93,7 +109,7 @@ def campaign_table_from_records(records) -> pd.DataFrame:
         if col not in df.columns:
             if col == "sigma":
                 df[col] = 1.0
-            elif col in MEASURED_COLUMNS or col in STD_COLUMNS:
+            elif col in MEASURED_COLUMNS or col in STD_COLUMNS or col in SEM_COLUMNS:
                 df[col] = math.nan
     df["sigma"] = pd.to_numeric(df["sigma"]).fillna(1.0)  # monodisperse runs
     ordered = [c for c in CAMPAIGN_COLUMNS if c in df.columns]
@@ -153,7 +169,7 @@ def validate_campaign_table(df: pd.DataFrame) -> pd.DataFrame:
     _bad("phi0", lambda x: (x < 0) | (x > 1), "in [0, 1]")
     for col in ("h", "rho_bar", "rho_c"):
         _bad(col, lambda x: x <= 0, "> 0")
-    for col in STD_COLUMNS:
+    for col in STD_COLUMNS + SEM_COLUMNS:
         _bad(col, lambda x: x < 0, ">= 0")
     return df
 

@@ -25,10 +25,13 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+import math
+
 import numpy as np
 from scipy import stats
 
 __all__ = [
+    "standard_error_of_mean",
     "autocorrelation",
     "statistical_inefficiency",
     "subsample_indices",
@@ -122,6 +125,19 @@ def statistical_inefficiency(x, y=None, *, fast: bool = False, mintime: int = MI
             t += inc
             inc += 1
     return max(g, 1.0)
+
+
+def standard_error_of_mean(x) -> float:
+    """Standard error of the mean of a serially correlated series: sqrt(g var(x) / N), with the
+    statistical inefficiency g >= 1 (N/g decorrelated samples).  NaN for fewer than 2 finite
+    values.  For block (time-window) means this is the batch-means error estimate, corrected for
+    any correlation left between the blocks."""
+    x = np.asarray(x, dtype=float).ravel()
+    x = x[np.isfinite(x)]
+    if x.size < 2:
+        return math.nan
+    g = statistical_inefficiency(x)
+    return float(math.sqrt(g * np.var(x, ddof=1) / x.size))
 
 
 def subsample_indices(x=None, g: float | None = None, *, n: int | None = None) -> np.ndarray:

@@ -1,0 +1,317 @@
+"""What the data identify (issue 13 §2-3): per-parameter identifiability, reduced forms,
+unconditional uncertainties, held-out z-scores, and a library whose evaluators say what they do
+not know.
+
+Every test builds data with a known answer: parameters that must be identified, a model that is
+wrong for its data, an outlier run, an (h, F) combination no run came near.
+"""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import granflow.closures as gc
+from granflow.fitting import (FitResult, Ps_teq29, campaign_table_from_records, fit_bulk_density,
+                              fit_campaign, fit_flow_rule, fit_hstop, fit_Ps_law,
+                              fit_stress_ratio, hstop_eq45, stress_ratio_eq53, theta_stop_eq45)
+from granflow.fitting.identify import (CORRELATION_LIMIT, assess, heldout_limit,
+                                       heldout_zscores, intrinsic_scatter)
+from granflow.steady.timeseries import standard_error_of_mean
+from granflow.units import RHO_PARTICLE
+
+HSTOP1 = dict(delta1=17.708, delta2=32.780, A=3.355)  # Weinhart et al. 2012 Table 1, lambda = 1
+
+
+def _result(params, stderr, kind="stress_ratio", **kw):
+    return FitResult(kind=kind, equation="test", params=params, stderr=stderr, error=0.0,
+                     n_points=10, ok=True, message="synthetic", **kw)
+
+
+# ---------------------------------------------------------------------------- the criterion
+def test_each_identifiability_test_fails_on_its_own():
+    ok = assess(_result({"d0": 130.0, "d1": 21.5}, {"d0": 20.0, "d1": 0.5}))
+    assert ok.status == "ok" and set(ok.param_status.values()) == {"identified"}
+    # relative tolerance 0.5 |value|
+    big = assess(_result({"d0": 130.0, "d1": 21.5}, {"d0": 70.0, "d1": 0.5}))
+    assert big.param_status == {"d0": "unidentified", "d1": "identified"}
+    assert "exceeds 0.5 |value|" in big.param_reason["d0"] and big.status == "unidentified"
+    assert not big.ok
+    # absolute tolerance for an angle offset: 2 degrees, whatever the angle's size
+    off = assess(_result({"d0": 130.0, "d1": 21.5}, {"d0": 20.0, "d1": 2.5}))
+    assert "absolute tolerance 2" in off.param_reason["d1"]
+    # no stderr
+    nan = assess(_result({"d0": 130.0, "d1": 21.5}, {"d0": math.nan, "d1": 0.5}))
+    assert "not finite" in nan.param_reason["d0"]
+    # at an optimiser bound (within a relative 1e-6)
+    bound = assess(_result({"Pmax": 1e4, "k": 0.002}, {"Pmax": 1.0, "k": 1e-4}, kind="Ps_law",
+                           extra={"bounds": {"Pmax": (0.0, 1e4), "k": (0.0, 1e3)}}))
+    assert bound.param_status["Pmax"] == "unidentified"
+    assert "optimiser bound" in bound.param_reason["Pmax"]
+    assert bound.param_status["k"] == "identified"
+    # two parameters correlated beyond 0.999: only a combination is determined
+    rng = np.random.default_rng(0)
+    a = rng.normal(0.0, 1.0, 400)
+    ens = np.column_stack([130 + 10 * a, 21.5 + 0.5 * (a + 0.01 * rng.normal(size=a.size))])
+    corr = np.corrcoef(ens.T)[0, 1]
+    assert abs(corr) > CORRELATION_LIMIT
+    ridge = assess(_result({"d0": 130.0, "d1": 21.5}, {"d0": 10.0, "d1": 0.5},
+                           ensemble=tuple(map(tuple, ens))))
+    assert ridge.param_status == {"d0": "unidentified", "d1": "unidentified"}
+    assert "only a combination" in ridge.param_reason["d0"]
+
+
+def test_heldout_limit_is_three_for_one_run_and_bonferroni_for_many():
+    assert heldout_limit(1) == pytest.approx(3.0, abs=1e-9)
+    # the largest of n standard normals exceeds the limit with probability 0.27 %
+    from scipy import stats
+
+    for n in (5, 20, 60):
+        lim = heldout_limit(n)
+        assert 1 - (1 - 2 * stats.norm.sf(lim)) ** n == pytest.approx(0.0027, rel=0.01)
+    assert heldout_limit(10, dof=8) > heldout_limit(10)  # Student t: heavier tails
+
+
+def test_intrinsic_scatter_is_what_the_uncertainties_do_not_explain():
+    rng = np.random.default_rng(1)
+    s = np.full(4000, 0.1)
+    r = rng.normal(0.0, math.hypot(0.1, 0.3), s.size)  # runs' errors 0.1 + scatter 0.3
+    assert math.sqrt(intrinsic_scatter(r, s, 2)) == pytest.approx(0.3, rel=0.05)
+    assert intrinsic_scatter(rng.normal(0, 0.1, 4000), s, 2) < 0.02 ** 2
+
+
+# ---------------------------------------------------------------------------- per-run uncertainty
+@pytest.mark.parametrize("phi,g_true", [(0.0, 1.0), (0.8, 9.0)])
+def test_standard_error_of_mean_of_correlated_series(phi, g_true):
+    """AR(1) with coefficient phi: var of the mean = g sigma^2/N with g = (1 + phi)/(1 - phi);
+    the estimate must be within 25 % of sqrt(g/N) (g itself is estimated from the series)."""
+    rng = np.random.default_rng(7)
+    n, reps = 2000, 40
+    sems = []
+    for _ in range(reps):
+        x = np.empty(n)
+        x[0] = rng.normal() / math.sqrt(1 - phi ** 2) if phi else rng.normal()
+        e = rng.normal(size=n)
+        for t in range(1, n):
+            x[t] = phi * x[t - 1] + e[t]
+        sems.append(standard_error_of_mean(x))
+    var = 1.0 / (1 - phi ** 2)
+    assert np.median(sems) == pytest.approx(math.sqrt(g_true * var / n), rel=0.25)
+
+
+# ---------------------------------------------------------------------------- reduced forms
+def test_density_without_curvature_falls_back_to_a_linear_form():
+    """Five runs over 22-28 deg with errors 0.005: Eq. (52)'s curvature is invisible, so the
+    library stores the linear volume fraction over the fitted range, never invented c1, c2."""
+    rng = np.random.default_rng(52)
+    theta = np.linspace(22.0, 28.0, 5)
+    nu = 0.5985 - np.exp((theta - 40.85) / 4.8) + rng.normal(0, 0.005, theta.size)
+    fit = fit_bulk_density(theta, nu * RHO_PARTICLE, sigma=np.full(5, 0.005 * RHO_PARTICLE))
+    assert (fit.status, fit.form) == ("reduced", "linear") and fit.ok
+    assert {p: fit.param_status[p] for p in ("c0", "c1", "c2")} == dict.fromkeys(
+        ("c0", "c1", "c2"), "not_in_form")
+    assert all(math.isnan(fit.params[p]) for p in ("c0", "c1", "c2"))
+    assert fit.param_status["nu_ref"] == "identified"
+    # the slope of Eq. (52) at the mean angle lies within 3 stderr of the fitted one
+    slope = -np.exp((theta.mean() - 40.85) / 4.8) / 4.8
+    assert abs(fit.params["dnu_dtheta"] - slope) < 3 * fit.stderr["dnu_dtheta"]
+    assert "eq52" in fit.diagnostics["forms_tried"] and "not identified" in fit.message
+
+
+def test_Ps_still_linear_in_inverse_sigma_gives_slope_and_a_lower_bound_on_Pmax():
+    """The default campaign's situation: Ps grows linearly up to 1/sigma = 2 (no saturation),
+    which pushed Pmax to its optimiser bound (1e4 +- 1.6e6) and was called ok.  Now the library
+    stores the initial slope and a one-sided bound Pmax >= max(Ps - 1.645 stderr)."""
+    sigma = np.array([0.5, 0.6, 0.7, 0.8, 0.9])
+    Ps = 16.0 * (1 / sigma - 1) + np.array([0.3, -0.4, 0.2, -0.1, 0.1])
+    se = np.array([1.5, 1.0, 0.5, 0.3, 0.2])
+    fit = fit_Ps_law(sigma, Ps, se)
+    assert (fit.status, fit.form) == ("reduced", "linear")
+    assert fit.param_status["Pmax"] == "not_in_form" and math.isnan(fit.params["Pmax"])
+    assert fit.params["slope"] == pytest.approx(16.0, abs=3 * fit.stderr["slope"])
+    assert fit.extra["Pmax_lower_bound"] == pytest.approx(np.max(Ps - 1.645 * se), rel=1e-12)
+    # a saturated law at the paper's values is identified in full
+    sat = Ps_teq29(sigma, 7.35, 5.21) + np.array([0.05, -0.05, 0.03, -0.02, 0.01])
+    full = fit_Ps_law(sigma, sat, np.full(5, 0.05))
+    assert (full.status, full.form) == ("ok", "full")
+    assert abs(full.params["Pmax"] - 7.35) < 3 * full.stderr["Pmax"]
+
+
+def test_flow_rule_without_gamma_is_pouliquens_with_gamma_fixed_and_stated():
+    rng = np.random.default_rng(47)
+    theta = np.repeat([23.0, 24.0, 25.0], 2)
+    h = np.tile([9.0, 10.0], 3)
+    F = 0.2 * h / hstop_eq45(theta, **HSTOP1) + rng.normal(0, 0.08, theta.size)
+    fit = fit_flow_rule(theta, h, F, HSTOP1, sigma=np.full(theta.size, 0.08))
+    assert fit.form == "pouliquen" and fit.status == "reduced"
+    assert fit.params["gamma"] == 0.0 and fit.param_status["gamma"] == "fixed"
+    assert "Pouliquen" in fit.param_reason["gamma"]
+    assert "gamma: stderr" in fit.diagnostics["forms_tried"]["eq47"]["why"]
+    assert abs(fit.params["beta"] - 0.2) < 3 * fit.stderr["beta"]
+
+
+# ---------------------------------------------------------------------------- held-out check
+def test_heldout_flags_a_wrong_model_and_an_outlier_but_not_a_right_one():
+    rng = np.random.default_rng(53)
+    theta = np.linspace(20.0, 34.0, 12)
+    sd = np.full(theta.size, 0.003)
+    right = stress_ratio_eq53(theta, 132.0, 21.5) + rng.normal(0, 0.003, theta.size)
+    good = fit_stress_ratio(theta, right, sigma=sd)
+    assert good.status == "ok"
+    assert good.diagnostics["heldout_max_abs_z"] < heldout_limit(theta.size)
+    assert good.diagnostics["structure_p"] > 1e-3
+    # a strongly curved K: neither Eq. (53) nor a constant describes it; the curvature is
+    # structure in theta, not scatter (the chi-square alone would not tell the two apart)
+    curved = 1.0 + 0.002 * (theta - 27.0) ** 2 + rng.normal(0, 0.003, theta.size)
+    bad = fit_stress_ratio(theta, curved, sigma=sd)
+    assert bad.status == "misfit" and not bad.ok
+    assert "does not describe" in bad.message and bad.diagnostics["structure_p"] < 1e-3
+    # random scatter 5 times the runs' errors is not a misfit: it inflates the stderr
+    noisy = stress_ratio_eq53(theta, 132.0, 21.5) + rng.normal(0, 0.015, theta.size)
+    scat = fit_stress_ratio(theta, noisy, sigma=sd)
+    assert scat.diagnostics["birge_ratio"] > 3 and scat.status in ("ok", "reduced")
+    # a single outlier run is named
+    out = right.copy()
+    out[5] += 0.05
+    ids = [f"run{k}" for k in range(theta.size)]
+    flagged = fit_stress_ratio(theta, out, sigma=sd, ids=ids)
+    z = flagged.diagnostics["heldout_z"]
+    assert max(z, key=lambda k: abs(z[k])) == "run5" and flagged.status == "misfit"
+
+
+def test_heldout_zscores_of_a_constant_are_studentized_residuals():
+    """Mean model, no per-run errors: z_i = (y_i - mean_-i) / sqrt(s_-i^2 (1 + 1/(n-1)))."""
+    y = np.array([1.0, 2.0, 4.0, 3.0, 10.0])
+    ids = list("abcde")
+
+    def refit(keep):
+        m = y[keep].mean()
+        return np.full(y.size, m), np.full(y.size, y[keep].var(ddof=1) / keep.sum())
+
+    z = heldout_zscores(ids, y, None, refit, n_params=1)
+    for i, k in enumerate(ids):
+        rest = np.delete(y, i)
+        expected = (y[i] - rest.mean()) / math.sqrt(rest.var(ddof=1) * (1 + 1 / rest.size))
+        assert z[k] == pytest.approx(expected, rel=1e-12)
+
+
+# ---------------------------------------------------------------------------- campaign and library
+def _campaign(rng, undecided=True):
+    """A lambda = 1 campaign: brackets every 0.5 deg at 7 heights, steady runs at 4 heights,
+    segregation runs of which two are not in a steady segregated state."""
+    recs = []
+    for H in (2.0, 3.0, 4.0, 6.0, 10.0, 20.0, 40.0):
+        ts = float(theta_stop_eq45(H, **HSTOP1))
+        lo = math.floor(ts * 2) / 2
+        recs.append(dict(theta=lo, H=H, state="arrested"))
+        recs.append(dict(theta=lo + 0.5, H=H, state="undecided" if (undecided and H == 3.0)
+                         else "accelerating"))
+    for H in (10.0, 20.0, 30.0, 40.0):
+        for theta in (22.0, 23.0, 24.0, 25.0, 26.0, 27.0):
+            h = 0.93 * H
+            F = 0.196 * h / hstop_eq45(theta, **HSTOP1) - 0.04 + rng.normal(0, 0.05)
+            recs.append(dict(theta=theta, H=H, state="steady", h=h, F=F, F_sem=0.05,
+                             alpha=1.3 + rng.normal(0, 0.01), alpha_sem=0.01,
+                             K=stress_ratio_eq53(theta, 132.0, 21.5) + rng.normal(0, 0.005),
+                             K_sem=0.005,
+                             rho_c=RHO_PARTICLE * (0.5985 - math.exp((theta - 40.85) / 4.8)
+                                                   + rng.normal(0, 0.002)),
+                             rho_c_sem=0.002 * RHO_PARTICLE))
+    for sigma, seg_state, state in ((0.5, "steady", "steady"), (0.6, "steady", "steady"),
+                                    (0.7, "steady", "accelerating"), (0.8, "drifting", "steady"),
+                                    (0.9, "drifting", "steady")):
+        recs.append(dict(theta=25.0, H=8.0, sigma=sigma, state=state, phi0=0.5,
+                         Ps=float(Ps_teq29(sigma, 7.35, 5.21)), Ps_sem=0.3,
+                         segregation_state=seg_state))
+    for k, r in enumerate(recs):
+        r.update(lam=1.0, contact_law="linear", run=f"r{k:03d}")
+    return campaign_table_from_records(recs)
+
+
+@pytest.fixture(scope="module")
+def campaign_library(tmp_path_factory):
+    table = _campaign(np.random.default_rng(2012))
+    fits = fit_campaign(table, n_bootstrap=60)
+    lib = gc.open_library(gc.write_library(tmp_path_factory.mktemp("lib"), "t", fits, table))
+    return table, {(f.kind, f.coords.get("lam")): f for f in fits}, lib
+
+
+def test_runs_not_in_the_needed_state_do_not_feed_a_closure(campaign_library):
+    table, by, lib = campaign_library
+    ps = by[("Ps_law", None)]
+    assert ps.status == "failed"  # only 0.5 and 0.6 are steady in both senses: too few
+    assert "2 of 5 runs used" in ps.selection
+    assert "1 accelerating (state not steady)" in ps.selection
+    assert "2 segregated state not steady (drifting)" in ps.selection
+    fr = by[("flow_rule", 1.0)]
+    und = table.loc[table["state"] == "undecided", "run"].iloc[0]
+    assert und in by[("hstop", 1.0)].runs_used and und not in fr.runs_used
+    # the library marks per run which closures it entered
+    used = lib["campaign_used_by_flow_rule"].values.astype(bool)
+    assert set(lib["campaign_run"].values[used].astype(str)) == set(fr.runs_used)
+
+
+def test_flow_rule_stderr_is_unconditional_on_hstop(campaign_library):
+    table, by, _ = campaign_library
+    h1, fr = by[("hstop", 1.0)], by[("flow_rule", 1.0)]
+    assert h1.status == "ok" and fr.ok
+    rows = table[table["run"].isin(fr.runs_used)]
+    cond = fit_flow_rule(rows["theta"], rows["h"], rows["F"], dict(h1.params),
+                         sigma=rows["F_sem"])
+    assert fr.stderr["beta"] > 1.2 * cond.stderr["beta"]
+    assert abs(fr.params["beta"] - 0.196) < 3 * fr.stderr["beta"]
+    # mu(h, F) carries both: its ensemble joins hstop's and the flow rule's sample by sample
+    mu = by[("friction", 1.0)]
+    ens = mu.ensemble_array()
+    np.testing.assert_array_equal(ens[:, :3], h1.ensemble_array()[:len(ens)])
+
+
+def test_evaluators_give_uncertainty_and_refuse_what_is_not_known(campaign_library):
+    table, by, lib = campaign_library
+    # value and ensemble spread, as a user calls it; lam may be omitted (one lambda)
+    res = gc.K(lib, [22.0, 25.0], uncertainty=True)
+    k = by[("stress_ratio", None)]
+    ens = k.ensemble_array()
+    sample = 1 + (25.0 - ens[:, 1]) / ens[:, 0]
+    assert float(res["std"][1]) == pytest.approx(np.std(sample, ddof=1), rel=1e-12)
+    assert float(res["value"][1]) == pytest.approx(stress_ratio_eq53(25.0, k.params["d0"],
+                                                                     k.params["d1"]), rel=1e-12)
+    assert res["value"].attrs["closure_status"] == "ok"
+    assert gc.hstop(lib, 25.0) == pytest.approx(gc.hstop(lib, 25.0, 1.0))
+    assert lib.closures.hstop(25.0) == pytest.approx(gc.hstop(lib, 25.0, 1.0))
+    # a failed closure is refused, naming why
+    with pytest.raises(ValueError, match="Ps_law closure .* is failed"):
+        gc.Ps(lib, 0.6)
+    # a combination (h, F) no run came near, although each is inside its own range
+    h_rng = (float(lib["friction_h_min"].item()), float(lib["friction_h_max"].item()))
+    F_rng = (float(lib["friction_F_min"].item()), float(lib["friction_F_max"].item()))
+    thick_slow = (h_rng[1], F_rng[0])
+    with pytest.raises(ValueError, match="no run came near"):
+        gc.mu(lib, *thick_slow)
+    assert np.isfinite(gc.mu(lib, *thick_slow, extrapolate=True))
+    # physically impossible values are refused even when extrapolating
+    with pytest.raises(ValueError, match="physically impossible"):
+        gc.density(lib, 70.0, extrapolate=True)
+    assert math.isnan(gc.density(lib, 70.0, extrapolate=True, impossible="nan"))
+
+
+def test_unidentified_closure_is_refused_unless_asked(tmp_path):
+    """hstop from three brackets: stored with its per-parameter reasons; evaluators refuse it
+    unless allow_unidentified=True; closure_status() and closures.csv say why."""
+    iv = pd.DataFrame({"H": [3.0, 6.0, 12.0], "theta_arrested_max": [24.0, 21.5, 19.5],
+                       "theta_flowing_min": [25.0, 22.5, 20.5]})
+    fit = fit_hstop(iv, lam=1.0, contact_law="linear", n_bootstrap=60, min_intervals=3)
+    assert fit.status == "unidentified"
+    lib = gc.open_library(gc.write_library(tmp_path, "u", [fit]))
+    with pytest.raises(ValueError, match="unidentified: .*allow_unidentified"):
+        gc.hstop(lib, 22.0)
+    assert gc.hstop(lib, 22.0, allow_unidentified=True) > 0
+    st = gc.closure_status(lib)
+    bad = st[st["parameter_status"] == "unidentified"]
+    assert len(bad) >= 1 and all(bad["reason"].str.len() > 0)
+    assert set(st["status"]) == {"unidentified"}
+    from granflow.campaign.fits import closure_rows
+
+    rows = closure_rows([fit])
+    assert set(rows["status"]) == {"unidentified"} and "parameter_reason" in rows

