@@ -216,10 +216,9 @@ def _contact_force(nx, ny, nz, r, ri, rj, vi, vj, wi, wj, m_ij, law, coef, sprin
         fty *= c
         ftz *= c
         if kt > 0.0:
-            inv_kt = 1.0 / kt  # one division for the three components
-            sx = -(ftx + gt * vtx) * inv_kt
-            sy = -(fty + gt * vty) * inv_kt
-            sz = -(ftz + gt * vtz) * inv_kt
+            sx = -(ftx + gt * vtx) / kt
+            sy = -(fty + gt * vty) / kt
+            sz = -(ftz + gt * vtz) / kt
     e_el += 0.5 * kt * (sx * sx + sy * sy + sz * sz)
 
     fx = fn * nx + ftx
@@ -297,10 +296,9 @@ def _pair_contact(p, q, pos, vel, omega, vel_h, omega_h, radius, ptype, box, pi,
     ti = ptype[i]
     tj = ptype[j]
     m_ij = mred[p]
-    inv_r = 1.0 / r  # one division for the three components of the normal
-    nx = dx * inv_r
-    ny = dy * inv_r
-    nz = dz * inv_r
+    nx = dx / r
+    ny = dy / r
+    nz = dz / r
     bi = -(radius[i] - 0.5 * (radius[i] + radius[j] - r))
     bj = radius[j] - 0.5 * (radius[i] + radius[j] - r)
     # relative contact-point displacement over the step (mid-step velocities)
@@ -418,10 +416,9 @@ def _linear_maths(work, tid, m, dt, update_history):
         m_ij = w[np.uint64(W_M * CHUNK_STRIDE) + k]
         r2 = dx * dx + dy * dy + dz * dz
         r = np.sqrt(r2)
-        inv_r = 1.0 / r
-        nx = dx * inv_r
-        ny = dy * inv_r
-        nz = dz * inv_r
+        nx = dx / r
+        ny = dy / r
+        nz = dz / r
         bi = -(ri - 0.5 * (ri + rj - r))
         bj = rj - 0.5 * (ri + rj - r)
         whix = w[np.uint64(W_WHI * CHUNK_STRIDE) + k]
@@ -510,10 +507,9 @@ def _linear_maths(work, tid, m, dt, update_history):
         fty = py if slide else fty
         ftz = pz if slide else ftz
         reset = slide & (kt > 0.0)
-        inv_kt = 1.0 / kt
-        px = -(ftx + gt * vtx) * inv_kt
-        py = -(fty + gt * vty) * inv_kt
-        pz = -(ftz + gt * vtz) * inv_kt
+        px = -(ftx + gt * vtx) / kt
+        py = -(fty + gt * vty) / kt
+        pz = -(ftz + gt * vtz) / kt
         sx = px if reset else sx
         sy = py if reset else sy
         sz = pz if reset else sz
