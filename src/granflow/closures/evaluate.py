@@ -154,6 +154,18 @@ def _closure(lib, kind, lam=None, contact_law=None, allow_unidentified=False) ->
     return Closure(kind, params, form, status, sel, ens)
 
 
+def closure_parameters(lib, kind, lam=None, contact_law=None, *,
+                       allow_unidentified=False) -> Closure:
+    """The stored cell of one closure: parameters, form, status and parameter ensemble.
+
+    For consumers that evaluate a closure many times with the same parameters (the continuum
+    models of :mod:`granflow.continuum`), after checking their inputs once with the evaluators
+    above.  Refuses a closure that is not ``ok``/``reduced`` exactly like the evaluators
+    (``allow_unidentified=True`` to inspect it).
+    """
+    return _closure(lib, kind, lam, contact_law, allow_unidentified)
+
+
 def _check_range(lib, kind, var, values, sel, extrapolate):
     if extrapolate:
         return
