@@ -105,6 +105,8 @@ def switch_measurement(parent_dir, child_dir) -> dict:
            else math.nan, "u_steady_sem": cs["depth_averages"].get("u_bar_sem", math.nan),
            "h2": cs["depth_averages"].get("flow_height", math.nan),
            "t": tb.tolist(), "u_mean": ub.tolist(), "t_final": cs["t_final"]}
+    early = (t > 0) & (t <= 5.0)       # initial acceleration: slope over the first 5 units
+    out["accel0"] = float(np.polyfit(t[early], u[early], 1)[0]) if early.sum() > 3 else math.nan
     try:
         fit = fit_relaxation(tb, ub, u0_mean)
         out.update(tau=fit["tau"], tau_stderr=fit["tau_stderr"], fit_u_inf=fit["u_inf"],
@@ -121,14 +123,24 @@ def compare_switch(lib, parent_dir, child_dir, *, allow_unidentified=True, extra
 
     m = switch_measurement(parent_dir, child_dir)
     t_end = max(float(m["t"][-1]), 1.0)
+    # Eq. (34) conserves rho_bar h: at theta2 the layer holds the same mass at the density of
+    # theta2 (library density closure, Eq. 52 or its reduced form); the ODE keeps that h
     try:
-        pred = switch_prediction(lib, h=m["h"], u0=m["u0"], theta=m["theta2"], t_end=t_end,
+        rho1, rho2 = (float(lib.closures.density(th, extrapolate=True,
+                                                 allow_unidentified=allow_unidentified))
+                      for th in (m["theta1"], m["theta2"]))
+        h_ode = m["h"] * rho1 / rho2
+    except ValueError:
+        h_ode = m["h"]
+    m["h_ode"] = h_ode
+    try:
+        pred = switch_prediction(lib, h=h_ode, u0=m["u0"], theta=m["theta2"], t_end=t_end,
                                  allow_unidentified=allow_unidentified, extrapolate=extrapolate,
                                  n_ensemble=n_ensemble, fit_t_max=t_end)
         refused = ""
     except ValueError as exc:   # outside the fitted range/hull: say so, then extrapolate
         refused = str(exc)
-        pred = switch_prediction(lib, h=m["h"], u0=m["u0"], theta=m["theta2"], t_end=t_end,
+        pred = switch_prediction(lib, h=h_ode, u0=m["u0"], theta=m["theta2"], t_end=t_end,
                                  allow_unidentified=allow_unidentified, extrapolate=True,
                                  n_ensemble=n_ensemble, fit_t_max=t_end)
     g = pred.sel(stat="value")
@@ -142,6 +154,9 @@ def compare_switch(lib, parent_dir, child_dir, *, allow_unidentified=True, extra
         closure_status={k[len("closure_status_"):]: v for k, v in pred.attrs.items()
                         if k.startswith("closure_status_")},
         extrapolated=refused)
+    tt, uu = pred.t.values, g.u_bar.values
+    early = (tt > 0) & (tt <= 5.0)
+    out["ode_accel0"] = float(np.polyfit(tt[early], uu[early], 1)[0])
     out["err_u_steady"] = (out["ode_u_steady"] / out["u_steady"] - 1.0
                            if math.isfinite(out["u_steady"]) else math.nan)
     out["err_tau"] = (out["ode_tau"] / out["tau"] - 1.0
@@ -381,9 +396,15 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
             r[f"{f}_travel_particles"] = dp
             r[f"{f}_travel_solver"] = ds_
             r[f"{f}_err"] = ds_ / dp - 1.0 if abs(dp) > 1e-9 else math.nan
+    snap = np.unique(np.linspace(0, len(times) - 1, 5).round().astype(int))
+    profiles = {"x": x.tolist(), "t": [float(times[k]) for k in snap],
+                "h_particles": [part.h.values[k].tolist() for k in snap],
+                "h_solver": [sol.h.values[k].tolist() for k in snap]}
     late = [r for r in rows if r["t"] >= 0.25 * times[-1]]
     worst = {f: max(abs(r[f"{f}_err"]) for r in late) for f in ("peak", "front")}
-    return {"rows": rows, "worst_err_after_quarter": worst, "rho_bar": rho_bar,
+    return {"rows": rows, "profiles": profiles, "worst_err_after_quarter": worst,
+            "rho_bar": rho_bar, "closure_K": c.K, "shallow_layer_attrs": {
+                k: v for k, v in sol.attrs.items() if k.startswith(("closure_", "scheme", "n_"))},
             "theta": theta, "closure_status": {k[len("closure_status_"):]: v
                                                for k, v in sol.attrs.items()
                                                if k.startswith("closure_status_")},
@@ -421,7 +442,6 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     """One bidisperse run vs T-eq. (27) with both fluxes: Ps (symmetric, library) and
     (Ps, kappa) (asymmetric, the run's fit in ``segregation_fits.json``), D from the library's
     diffusivity at the run's u_bar, h and volume-weighted mean diameter."""
-    from ..closures.evaluate import closure_parameters
     from .segregation import segregation_layer
 
     m = segregation_measurement(run_dir)
@@ -430,12 +450,10 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     Dds = lib.closures.diffusivity(m["u_bar"], m["h"], d_mean=d_mean, uncertainty=True,
                                    allow_unidentified=allow_unidentified)
     D, D_std = float(Dds["value"]), float(Dds["std"])
-    seg = closure_parameters(lib, "segregation", None, allow_unidentified=True)
     isig = int(np.argmin(np.abs(lib["sigma"].values - sigma)))
     Ps = float(np.asarray(lib["segregation_Ps"].values).reshape(-1, lib.sizes["sigma"])[0, isig])
     Ps_status = str(np.asarray(lib["segregation_status"].values).reshape(
         -1, lib.sizes["sigma"])[0, isig])
-    del seg
     fit = next(f for f in seg_fits if abs(f["fit"]["coords"].get("sigma", -1) - sigma) < 1e-9)
     ex = fit["fit"]["extra"]
     prof = fit["profile"]
@@ -543,7 +561,16 @@ def plot_all(res: dict, figures) -> list:
     if lc:
         rows = lc["rows"]
         t = [r["t"] for r in rows]
-        fig, ax = plt.subplots(figsize=(4.5, 3.2))
+        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9.5, 3.2))
+        pr = lc.get("profiles")
+        if pr:
+            for k, tk in enumerate(pr["t"]):
+                col = plt.cm.viridis(k / max(len(pr["t"]) - 1, 1))
+                ax2.plot(pr["x"], pr["h_particles"][k], ".", ms=2, color=col)
+                ax2.plot(pr["x"], pr["h_solver"][k], "-", lw=1, color=col, label=f"t = {tk:g}")
+            ax2.set_xlabel("x")
+            ax2.set_ylabel("h (points: particles, lines: solver)")
+            ax2.legend(fontsize=6)
         for f, c in (("peak", "C1"), ("front", "C2")):
             ax.plot(t, [r[f"{f}_travel_particles"] for r in rows], "o", ms=3, color=c,
                     label=f"{f}: particles")
@@ -640,7 +667,7 @@ def format_tables(res: dict) -> str:
                                            for k, v in res["closure_status"].items()), "",
              "theta1 -> theta2 switches (particle run vs uniform-layer ODE)",
              f"{'H':>4} {'th1':>5} {'th2':>5} {'state':>9} {'u_part':>7} {'u_ODE':>13} {'err':>7}"
-             f" {'tau_part':>12} {'tau_ODE':>12} {'err':>7}"]
+             f" {'tau_part':>12} {'tau_ODE':>12} {'err':>7} {'a0_part':>8} {'a0_ODE':>8}"]
     for s in res["switches"]:
         if "error" in s:
             lines.append(f"  {s['child']}: {s['error']}")
@@ -650,6 +677,7 @@ def format_tables(res: dict) -> str:
             f"{s['u_steady']:7.3f} {s['ode_u_steady']:6.3f}+-{s['ode_u_steady_std']:5.3f} "
             f"{s['err_u_steady']:+7.1%} {s.get('tau', math.nan):6.1f}+-{s.get('tau_stderr', math.nan):4.1f}"
             f" {s['ode_tau']:6.1f}+-{s['ode_tau_std']:4.1f} {s['err_tau']:+7.1%}"
+            f" {s.get('accel0', math.nan):+8.4f} {s.get('ode_accel0', math.nan):+8.4f}"
             + ("  (extrapolated)" if s.get("extrapolated") else ""))
     lc = res.get("long_chute")
     if lc:
