@@ -252,3 +252,25 @@ def test_switch_prediction_refuses_unfitted_states(library):
     with pytest.raises(ValueError, match="outside"):
         switch_prediction(library, h=200.0, u0=1.0, theta=26.0, t_end=10.0,
                           allow_unidentified=True, uncertainty=False)
+
+
+# ----------------------------------------------------------------------------- CF outputs
+def test_model_results_are_cf_compliant(tmp_path):
+    from cf_compliance import check
+
+    from granflow.provenance import atomic_to_netcdf
+
+    c = eq50(26.0, K=1.05, alpha=1.25)
+    x = np.arange(40) + 0.5
+    results = {"uniform": uniform_layer(c, 8.0, 0.3, 20.0, n_out=21),
+               "shallow": shallow_layer(c, x, 6.0 + np.exp(-((x - 10) / 3) ** 2), 0.5, 5.0,
+                                        n_out=3),
+               "segregation": segregation_layer(6.0, 0.02, 8.0, 0.5, 50.0, n=40, n_out=6)}
+    for name, ds in results.items():
+        path = tmp_path / f"{name}.nc"
+        atomic_to_netcdf(ds, path)
+        for var in ds.data_vars.values():
+            assert var.attrs["units"] in ("1", "degree") and var.attrs["long_name"]
+        s = check(path)
+        assert not s["cf:1.8"].high_failures, (name, s["cf:1.8"].high_failures)
+        assert not s["acdd:1.3 applicable"].high_failures, (name, s["acdd:1.3 applicable"])
