@@ -300,8 +300,9 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
     run, after the built-in ones (e.g. a second :class:`~granflow.observers.ProfileObserver`
     with another coarse-graining choice).  ``from_state``: start from this saved state at the
-    inclination of ``params`` (:func:`restart_state`; ``base_file`` is not used).  Returns a summary dict (flow state, stop reason,
-    final time, particle count, wall time, and the ChuteRun under ``run``).
+    inclination of ``params`` (:func:`restart_state`; ``base_file`` is not used).  Returns a
+    summary dict (flow state, stop reason, final time, particle count, wall time, and the
+    ChuteRun under ``run``).
     """
     import json
     import time as _time
@@ -320,9 +321,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         system, parent = restart_state(from_state, cfg)
     if ckpt.exists():  # resume: the run restores the system and its observers from here
         system, _ = ParticleSystem.load(ckpt)
-    elif from_state is not None:
-        pass
-    else:
+    elif from_state is None:  # a fresh run: build the chute (a restart has its system already)
         if base_file is not None:
             base_file = Path(base_file)
             if not base_file.exists():
