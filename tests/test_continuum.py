@@ -274,3 +274,23 @@ def test_model_results_are_cf_compliant(tmp_path):
         s = check(path)
         assert not s["cf:1.8"].high_failures, (name, s["cf:1.8"].high_failures)
         assert not s["acdd:1.3 applicable"].high_failures, (name, s["acdd:1.3 applicable"])
+
+
+def test_segregation_Ps_follows_the_library_status_rules():
+    import xarray as xr
+
+    from granflow.continuum.experiments import segregation_Ps_at
+
+    lib = xr.Dataset(
+        {"segregation_Ps": (("contact_law", "sigma"), [[16.4, 9.3, np.nan]]),
+         "segregation_status": (("contact_law", "sigma"),
+                                np.array([["ok", "unidentified", "failed"]], dtype=object))},
+        coords={"contact_law": ["linear"], "sigma": [0.5, 0.7, 0.9]})
+    assert segregation_Ps_at(lib, 0.5) == (16.4, "ok")
+    with pytest.raises(ValueError, match="sigma = 0.7 is unidentified"):
+        segregation_Ps_at(lib, 0.7)
+    assert segregation_Ps_at(lib, 0.7, allow_unidentified=True) == (9.3, "unidentified")
+    with pytest.raises(ValueError, match="failed"):  # failed: refused even when allowed
+        segregation_Ps_at(lib, 0.9, allow_unidentified=True)
+    with pytest.raises(ValueError, match="sigma = 0.6 has no segregation closure"):
+        segregation_Ps_at(lib, 0.6)

@@ -437,11 +437,40 @@ def segregation_measurement(run_dir, smooth_bins: int = 3) -> dict:
             "t": (t[after] - t0).tolist(), "s": (vs[after] - s0).tolist()}
 
 
+def segregation_Ps_at(lib, sigma, *, contact_law=None, allow_unidentified=False):
+    """Ps of the library's per-size-ratio ``segregation`` closure at ``sigma`` and its status.
+
+    The library has no evaluator for this per-run kind (``Ps(lib, sigma)`` evaluates the fitted
+    law ``Ps_law``), so the status rules of :mod:`granflow.closures.evaluate` are applied here:
+    a ``failed`` cell always raises, one that is not ``ok``/``reduced`` raises unless
+    ``allow_unidentified`` (the status is returned and recorded by the caller)."""
+    from ..closures.evaluate import _resolve_contact_law
+
+    sigmas = np.asarray(lib["sigma"].values, dtype=float)
+    hit = np.flatnonzero(np.abs(sigmas - float(sigma)) <= 1e-9)
+    if hit.size == 0:
+        raise ValueError(f"sigma = {sigma:g} has no segregation closure (library sigma "
+                         f"{sigmas.tolist()})")
+    sel = {"contact_law": _resolve_contact_law(lib, contact_law)}
+    cell = {k: v for k, v in sel.items() if k in lib["segregation_Ps"].dims}
+    Ps = float(lib["segregation_Ps"].sel(cell).isel(sigma=int(hit[0])).item())
+    status = str(lib["segregation_status"].sel(cell).isel(sigma=int(hit[0])).item())
+    if status == "failed" or (status not in ("ok", "reduced") and not allow_unidentified):
+        raise ValueError(f"segregation closure at sigma = {sigma:g} is {status}"
+                         + ("" if status == "failed"
+                            else " (pass allow_unidentified=True to use it anyway)"))
+    return Ps, status
+
+
 def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
                         n_ensemble: int = 50) -> dict:
     """One bidisperse run vs T-eq. (27) with both fluxes: Ps (symmetric, library) and
     (Ps, kappa) (asymmetric, the run's fit in ``segregation_fits.json``), D from the library's
-    diffusivity at the run's u_bar, h and volume-weighted mean diameter."""
+    diffusivity at the run's u_bar, h and volume-weighted mean diameter.
+
+    Non-ok closures: with ``allow_unidentified=True`` (the default here, as the comparison is
+    meant to show how such closures predict) an ``unidentified`` Ps or diffusivity is used and
+    its status is recorded (``Ps_status``); ``failed`` closures always raise."""
     from .segregation import segregation_layer
 
     m = segregation_measurement(run_dir)
@@ -450,10 +479,7 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     Dds = lib.closures.diffusivity(m["u_bar"], m["h"], d_mean=d_mean, uncertainty=True,
                                    allow_unidentified=allow_unidentified)
     D, D_std = float(Dds["value"]), float(Dds["std"])
-    isig = int(np.argmin(np.abs(lib["sigma"].values - sigma)))
-    Ps = float(np.asarray(lib["segregation_Ps"].values).reshape(-1, lib.sizes["sigma"])[0, isig])
-    Ps_status = str(np.asarray(lib["segregation_status"].values).reshape(
-        -1, lib.sizes["sigma"])[0, isig])
+    Ps, Ps_status = segregation_Ps_at(lib, sigma, allow_unidentified=allow_unidentified)
     fit = next(f for f in seg_fits if abs(f["fit"]["coords"].get("sigma", -1) - sigma) < 1e-9)
     ex = fit["fit"]["extra"]
     prof = fit["profile"]
