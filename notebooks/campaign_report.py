@@ -31,6 +31,7 @@ FIGURES = None                # folder to save the figures as PNG (None: do not 
 import json
 import math
 from pathlib import Path
+import textwrap
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -664,7 +665,12 @@ for ax, (_, r) in zip(axes[0], steady_runs.iterrows()):
         try:
             pred, ls = switch_prediction(lib, **kw), "-"
         except ValueError:
-            pred, ls = switch_prediction(lib, extrapolate=True, **kw), ":"
+            try:
+                pred, ls = switch_prediction(lib, extrapolate=True, **kw), ":"
+            except ValueError as err:  # e.g. a failed friction closure: say so, no prediction
+                ax.text(0.02, 0.5, textwrap.fill(str(err), 50), fontsize=5,
+                        transform=ax.transAxes)
+                continue
         ax.fill_between(pred.t, pred.u_bar.sel(stat="low"), pred.u_bar.sel(stat="high"),
                         color=colour, alpha=0.25)
         ax.plot(pred.t, pred.u_bar.sel(stat="value"), ls, color=colour,
@@ -673,6 +679,9 @@ for ax, (_, r) in zip(axes[0], steady_runs.iterrows()):
     ax.set_xlabel("t since switch")
     ax.legend(fontsize=6)
 axes[0][0].set_ylabel("u_bar")
+if not len(steady_runs):
+    axes[0][0].text(0.05, 0.5, "no steady run to switch", transform=axes[0][0].transAxes)
+    axes[0][0].set_axis_off()
 fig.tight_layout()
 savefig(fig, "continuum_switch_predictions")
 if comparison is not None and comparison["switches"]:

@@ -124,3 +124,28 @@ def test_diffusivity_closure_is_stored_with_its_uncertainty(comparison):
     for r in rows:
         pred = float(lib.closures.diffusivity(r["u_bar"], r["h"], allow_unidentified=True))
         assert abs(pred - r["D"]) <= 3 * math.hypot(r["D_stderr"], float(D["std"]))
+
+
+def test_package_example_runs_on_the_comparison_library(comparison):
+    """The example of the granflow.continuum docstring, as written, on results/continuum."""
+    import os
+
+    import numpy as np
+
+    import granflow.continuum as C
+
+    code = C.__doc__.split("Example: open a library and run each model ::")[1]
+    code = "\n".join(line[4:] for line in code.splitlines())
+    ns = {}
+    cwd = os.getcwd()
+    os.chdir(REPO)
+    try:
+        exec(code, ns)
+    finally:
+        os.chdir(cwd)
+    assert float(abs(ns["res"].mass[-1] / ns["res"].mass[0] - 1)) < 1e-12
+    lib = ns["lib"]
+    c_D = float(lib["diffusivity_c_D"].squeeze())
+    assert ns["D"] == pytest.approx(c_D * 0.75 / 7.9 * 1.5 ** 2, rel=1e-12)
+    assert ns["Ps_status"] in ("ok", "reduced")
+    assert np.isfinite(float(ns["seg"].t_half))

@@ -13,6 +13,15 @@
   synthetic closures (Coulomb friction) for tests.
 * :mod:`.exact` -- exact solutions for tests (Mangeney et al. 2000 dam break).
 
+Closures that are not ``ok``/``reduced``: the models' library entry points
+(:meth:`FlowClosures.from_library`, :func:`switch_prediction`) take ``allow_unidentified``
+(default False) and refuse such a closure with the library's own error naming it; with
+``allow_unidentified=True`` it is used and its status is written into the result
+(``closure_status_<kind>``), so a prediction built on an unidentified closure says so.
+``failed`` closures are always refused.  The particle comparisons of :mod:`.experiments`
+default to ``allow_unidentified=True`` (they test the campaign's closures as they are) and
+record every status in their JSON.
+
 Every model returns an :class:`xarray.Dataset` with CF attributes (units ``1`` and the scale in
 ``nondimensional_unit``; see :mod:`granflow.units`), provenance and the status/form of every
 closure it used (``closure_status_friction`` etc.).
@@ -24,8 +33,11 @@ Example: open a library and run each model ::
     from granflow.closures import open_library
     from granflow.continuum import (FlowClosures, segregation_layer, shallow_layer,
                                     switch_prediction)
+    from granflow.continuum.experiments import segregation_Ps_at
 
-    lib = open_library("results/default/closures.nc")
+    # the campaign's library with the diffusivity closure added (granflow.continuum.experiments
+    # diffusivity; results/default/closures.nc alone has no diffusivity for model 3)
+    lib = open_library("results/continuum/closures.nc")
     print(lib.closures.status()[["kind", "parameter", "status"]])
     # 1. a steady layer h = 8, u = 0.9 switched to 26 degrees (friction may be unidentified
     #    in a small campaign: allow_unidentified=True evaluates it anyway, and says so)
@@ -40,7 +52,7 @@ Example: open a library and run each model ::
     res = shallow_layer(c, x, h0, u0, t_end=100.0)
     # 3. segregation with the library's Ps and the measured diffusivity
     D = float(lib.closures.diffusivity(u_bar=0.75, h=7.9, d_mean=1.5))
-    Ps = float(lib.segregation_Ps.sel(sigma=0.5).squeeze())
+    Ps, Ps_status = segregation_Ps_at(lib, 0.5)   # refused unless ok/reduced
     seg = segregation_layer(Ps=Ps, D=D, h=7.9, phi0=0.5, t_end=400.0)
 """
 
