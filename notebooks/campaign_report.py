@@ -31,6 +31,7 @@ FIGURES = None                # folder to save the figures as PNG (None: do not 
 import json
 import math
 from pathlib import Path
+import textwrap
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -622,3 +623,138 @@ if len(cmp_paper):
                      "where that is looser; meaningful only at the paper's species and "
                      "protocol -- see the reductions above):"))
     display(cmp_paper)
+
+# %% [markdown]
+# ## Continuum consumers: the closures in use (granflow.continuum)
+# The library drives three continuum models; each is checked against particle runs the
+# library was not fitted on when those exist (`results/continuum/comparison.json`, written by
+# `python -m granflow.continuum.experiments compare`, see the package docstring).  Closures
+# that are not `ok`/`reduced` are used with `allow_unidentified=True` and marked so.
+
+# %%
+from granflow.continuum import FlowClosures, segregation_layer, shallow_layer, switch_prediction
+from granflow.continuum.experiments import format_tables
+
+COMPARISON = R.parent / "continuum" / "comparison.json"
+comparison = json.loads(COMPARISON.read_text()) if COMPARISON.exists() else None
+cst = lib.closures.status()
+used = cst[cst["kind"].isin(["friction", "alpha", "stress_ratio", "segregation",
+                             "diffusivity"])]
+display(used.groupby("kind")["status"].agg(lambda s: "/".join(sorted(set(s)))).to_frame())
+if comparison is not None:
+    print(format_tables(comparison))
+else:
+    display(Markdown(f"No particle comparison at `{COMPARISON}`: predictions only below."))
+
+# %% [markdown]
+# ### 1. Uniform layer after a change of inclination (Eq. 34 as an ODE)
+# du/dt = g cos(theta) (tan(theta) - mu(h, F)): the steady runs of this campaign switched by
+# +-1.5 degrees, with the 16-84 % band over the friction closure's ensemble (dotted: outside the
+# fitted (h, F) region, extrapolated).  With particle switch runs: their u(t) as points.
+
+# %%
+steady_runs = table[(table["state"] == "steady") & (table["kind"] == "chute")
+                    if "kind" in table else (table["state"] == "steady")]
+steady_runs = steady_runs.sort_values("H").drop_duplicates("H", keep="last")
+fig, axes = plt.subplots(1, max(len(steady_runs), 1), figsize=(3.0 * max(len(steady_runs), 1),
+                                                                2.6), squeeze=False)
+for ax, (_, r) in zip(axes[0], steady_runs.iterrows()):
+    for dth, colour in ((1.5, "C3"), (-1.5, "C0")):
+        kw = dict(h=r["h"], u0=r["u_bar"], theta=r["theta"] + dth, t_end=150.0,
+                  allow_unidentified=True, n_ensemble=40)
+        try:
+            pred, ls = switch_prediction(lib, **kw), "-"
+        except ValueError:
+            try:
+                pred, ls = switch_prediction(lib, extrapolate=True, **kw), ":"
+            except ValueError as err:  # e.g. a failed friction closure: say so, no prediction
+                ax.text(0.02, 0.5, textwrap.fill(str(err), 50), fontsize=5,
+                        transform=ax.transAxes)
+                continue
+        ax.fill_between(pred.t, pred.u_bar.sel(stat="low"), pred.u_bar.sel(stat="high"),
+                        color=colour, alpha=0.25)
+        ax.plot(pred.t, pred.u_bar.sel(stat="value"), ls, color=colour,
+                label=f"-> {r['theta'] + dth:g} deg")
+    ax.set_title(f"H = {r['H']:g}, from {r['theta']:g} deg", fontsize=8)
+    ax.set_xlabel("t since switch")
+    ax.legend(fontsize=6)
+axes[0][0].set_ylabel("u_bar")
+if not len(steady_runs):
+    axes[0][0].text(0.05, 0.5, "no steady run to switch", transform=axes[0][0].transAxes)
+    axes[0][0].set_axis_off()
+fig.tight_layout()
+savefig(fig, "continuum_switch_predictions")
+if comparison is not None and comparison["switches"]:
+    sw = pd.DataFrame([{k: s.get(k) for k in ("H", "theta1", "theta2", "child_state", "u_steady",
+                                               "ode_u_steady", "ode_u_steady_std",
+                                               "err_u_steady", "tau", "tau_stderr", "ode_tau",
+                                               "ode_tau_std", "err_tau", "extrapolated")}
+                       for s in comparison["switches"] if "error" not in s])
+    display(sw)
+
+# %% [markdown]
+# ### 2. Shallow-layer equations (Eq. 34) in one dimension
+# A bump on the uniform steady flow of the thinnest steady thick run, on a periodic domain of
+# length 100, with the library's mu(h, F), alpha and K; with a long-chute particle run: the
+# distance travelled by the peak and the front, particles against the solver.
+
+# %%
+if len(steady_runs):
+    r = steady_runs.iloc[-1]
+    c = FlowClosures.from_library(lib, float(r["theta"]), allow_unidentified=True)
+    x = np.arange(200) * 0.5 + 0.25
+    h0 = r["h"] * (1.0 + 0.15 * np.exp(-((x - 20.0) / 6.0) ** 2))
+    u0 = c.steady_froude(h0) * np.sqrt(c.g_cos * h0)
+    sol = shallow_layer(c, x, h0, np.nan_to_num(u0), t_end=40.0, n_out=5, extrapolate=True)
+    fig, axes = plt.subplots(1, 2, figsize=(8.0, 2.6))
+    for k in range(sol.sizes["t"]):
+        axes[0].plot(x, sol.h.isel(t=k), label=f"t = {float(sol.t[k]):g}")
+    axes[0].set_xlabel("x")
+    axes[0].set_ylabel("h")
+    axes[0].legend(fontsize=6)
+    axes[0].set_title(f"theta = {r['theta']:g}: bump on h = {r['h']:.3g} "
+                      f"(mass drift {float(sol.mass[-1] / sol.mass[0] - 1):.1e})", fontsize=8)
+    lc = comparison.get("long_chute") if comparison else None
+    if lc:
+        t = [q["t"] for q in lc["rows"]]
+        for f, colour in (("peak", "C1"), ("front", "C2")):
+            axes[1].plot(t, [q[f"{f}_travel_particles"] for q in lc["rows"]], "o", ms=3,
+                         color=colour, label=f"{f}: particles")
+            axes[1].plot(t, [q[f"{f}_travel_solver"] for q in lc["rows"]], "-", color=colour,
+                         label=f"{f}: solver")
+        axes[1].set_xlabel("t")
+        axes[1].set_ylabel("distance travelled")
+        axes[1].legend(fontsize=6)
+    else:
+        axes[1].text(0.05, 0.5, "no long-chute particle run", transform=axes[1].transAxes)
+        axes[1].set_axis_off()
+    fig.tight_layout()
+    savefig(fig, "continuum_shallow_layer")
+
+# %% [markdown]
+# ### 3. Segregation in depth (T-eq. 27)
+# s(t) = z_com(small) - z_com(all) of the bidisperse runs from the start of the flow, and the
+# model with the library's Ps (symmetric flux) or the run's asymmetric-flux fit (seed 001),
+# with the diffusivity D = c_D (u_bar/h) d_mean^2 of the library (needs the `diffusivity`
+# closure: the continuum comparison's library version has it, the campaign's alone does not).
+
+# %%
+seg_cmp = [s for s in (comparison or {}).get("segregation", []) if "error" not in s]
+if seg_cmp:
+    fig, axes = plt.subplots(1, len(seg_cmp), figsize=(2.6 * len(seg_cmp), 2.6), squeeze=False)
+    for ax, s in zip(axes[0], seg_cmp):
+        ax.plot(s["t"], s["s"], "k.", ms=2, label="particles")
+        for name, colour in (("symmetric", "C0"), ("asymmetric", "C3")):
+            ax.plot(s[name]["t"], s[name]["s"], color=colour,
+                    label=f"{name}: t1/2 {s[name]['t_half']:.0f} ({s[name]['err_t_half']:+.0%})")
+        ax.set_title(f"sigma = {s['sigma']:g}, t1/2 particles {s['t_half']:.0f}", fontsize=8)
+        ax.set_xlabel("t - t0")
+        ax.legend(fontsize=5)
+    axes[0][0].set_ylabel("s - s(t0)")
+    fig.tight_layout()
+    savefig(fig, "continuum_segregation")
+elif "diffusivity_ok" in lib:
+    display(Markdown("The library has a diffusivity closure but no comparison was run."))
+else:
+    display(Markdown("This library has no `diffusivity` closure: the segregation time scale "
+                     "h^2/D is not predicted here (see `granflow.continuum.experiments`)."))

@@ -107,13 +107,20 @@ def test_tiny_campaign_end_to_end(tiny):
     # the executed report: every figure, as inline PNG and as files
     html = (res / "report.html").read_text()
     for title in ("What this library knows", "Flow-state map", "Flow rule", "Depth profiles",
-                  "Bulk density", "Segregation", "Snapshot", "Held-out check", "Closure table"):
+                  "Bulk density", "Segregation", "Snapshot", "Held-out check", "Closure table",
+                  "Continuum consumers"):
         assert title in html, title
     assert html.count("data:image/png;base64,") >= 6
     assert "Traceback" not in html
     figs = sorted(p.name for p in (res / "figures").glob("*.png"))
-    assert figs == ["density_K_alpha.png", "flow_rule.png", "flow_state_map.png",
-                    "heldout_z.png", "profiles.png", "segregation.png", "snapshot.png"]
+    # the continuum section: switch predictions always (an empty panel that says so when the
+    # tiny campaign has no steady run); the shallow-layer bump only with a steady run
+    steady = ((table["state"] == "steady")
+              & ((table["kind"] == "chute") if "kind" in table else True)).any()
+    assert figs == sorted(["density_K_alpha.png", "flow_rule.png", "flow_state_map.png",
+                           "heldout_z.png", "profiles.png", "segregation.png", "snapshot.png",
+                           "continuum_switch_predictions.png"]
+                          + (["continuum_shallow_layer.png"] if steady else []))
     assert wall < 600
 
 

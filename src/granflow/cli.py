@@ -2,7 +2,8 @@
 
 Commands
 --------
-simulate      run one chute from a parameter file (YAML) into an output folder (resumable)
+simulate      run one chute from a parameter file (YAML) into an output folder (resumable;
+              --from STATE restarts a saved final_state.npz at a new inclination)
 prepare-base  prepare and freeze a rough base for one lambda (reused by every run over it)
 demo          a short chute demonstration run (engine smoke demo for the quick start)
 campaign      the campaign workflow's steps (check-config, expand, run-params, row, collect,
@@ -73,7 +74,8 @@ def cmd_simulate(args):
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, stop)
     try:
-        summary = simulate(params, args.out, base_file=args.base, threads=args.threads)
+        summary = simulate(params, args.out, base_file=args.base, threads=args.threads,
+                           from_state=args.from_state)
     finally:
         remove_pid_file()
     print(f"{args.out}: {summary['flow_state']} ({summary['stop_reason']}) at t = {summary['t_final']:.4g} "
@@ -116,6 +118,9 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--base", default=None, help="prepared base positions (.npy) to reuse")
     p.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
+    p.add_argument("--from", dest="from_state", default=None, metavar="STATE",
+                   help="restart from a saved final_state.npz at the inclination of the "
+                        "parameter file (clock reset to 0; outputs name the parent run)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("prepare-base", help="prepare a rough base for one lambda")

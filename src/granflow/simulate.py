@@ -18,6 +18,12 @@ Early stopping (issue 5): the run ends when the :class:`~granflow.steady.SteadyS
 says it is arrested, clearly accelerating, or steady with ``averaging_time`` of data after the
 steady onset; ``t_end`` is the hard cap.
 
+Restart at a new inclination (``from_state``, ``granflow simulate run.yaml --from STATE``): the
+run starts from a saved ``final_state.npz`` (positions, velocities, contact history) with the
+gravity tilted to the new ``theta`` and the clock reset to t = 0 (the switch); the state must
+belong to the same chute (box, particle count, collision time), and the outputs name the parent
+run (``parent_state``, its sha256 and the parent's summary provenance).
+
 All outputs are written atomically; the checkpoint is removed only after they exist.
 """
 
@@ -242,14 +248,61 @@ def startup_time(system, theta_deg: float) -> float:
     return 2.0 * math.sqrt(2.0 * dz / math.cos(math.radians(theta_deg)))
 
 
+def restart_state(state_file, cfg: ChuteConfig):
+    """The particle system of a saved state, tilted to ``cfg.theta`` with the clock at t = 0,
+    and the parent's provenance.  Raises ValueError if the state is not of this chute (box,
+    flow-particle count, time step) -- checked before any compute."""
+    import hashlib
+    import json
+
+    state_file = Path(state_file)
+    system, _ = ParticleSystem.load(state_file)
+    n_flow = int((~system.fixed).sum())
+    n_expected = len(cfg.flow_particles()[0])
+    problems = []
+    if abs(system.Lx - cfg.Lx) > 1e-9 or abs(system.Ly - cfg.Ly) > 1e-9:
+        problems.append(f"box {system.Lx:g} x {system.Ly:g} (run file: {cfg.Lx:g} x {cfg.Ly:g})")
+    if n_flow != n_expected:
+        problems.append(f"{n_flow} flow particles (run file H = {cfg.H:g}, sigma, phi0 give "
+                        f"{n_expected})")
+    dt = cfg.flow.t_c / cfg.steps_per_collision
+    if abs(system.dt - dt) > 1e-12 * dt:
+        problems.append(f"time step {system.dt:g} (run file t_c / steps_per_collision = {dt:g})")
+    if problems:
+        raise ValueError(f"--from {os.fspath(state_file)!r} is not a state of this chute: "
+                         + "; ".join(problems))
+    g_new = np.asarray(cfg.gravity, dtype=np.float64)
+    mobile = ~system.fixed
+    # the stored forces hold m g of the old inclination: swap it for the new one (contacts and
+    # their history are kept; the first half kick then uses the new gravity)
+    system.force[mobile] += system.mass[mobile, None] * (g_new - system.gvec)[None, :]
+    system.gvec = g_new
+    parent_time = float(system.time)
+    system.time = 0.0
+    system.step_count = 0
+    parent = {"parent_state": os.fspath(state_file.resolve()),
+              "parent_state_sha256": hashlib.sha256(state_file.read_bytes()).hexdigest(),
+              "parent_time": parent_time}
+    summary = state_file.parent / "summary.json"
+    if summary.exists():
+        ps = json.loads(summary.read_text())
+        parent.update(parent_theta=ps.get("params", {}).get("theta"),
+                      parent_flow_state=ps.get("flow_state"),
+                      parent_git_commit=ps.get("provenance", {}).get("git_commit"),
+                      parent_config_hash=ps.get("provenance", {}).get("config_hash"))
+    return system, {k: v for k, v in parent.items() if v is not None}
+
+
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
-             progress=None, extra_observers=()) -> dict:
+             progress=None, extra_observers=(), from_state=None) -> dict:
     """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
 
     ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
     run, after the built-in ones (e.g. a second :class:`~granflow.observers.ProfileObserver`
-    with another coarse-graining choice).  Returns a summary dict (flow state, stop reason,
-    final time, particle count, wall time, and the ChuteRun under ``run``).
+    with another coarse-graining choice).  ``from_state``: start from this saved state at the
+    inclination of ``params`` (:func:`restart_state`; ``base_file`` is not used).  Returns a
+    summary dict (flow state, stop reason, final time, particle count, wall time, and the
+    ChuteRun under ``run``).
     """
     import json
     import time as _time
@@ -263,9 +316,12 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     cfg = chute_config(p)
     ckpt = out_dir / "checkpoint.npz"
     wall0 = _time.monotonic()
+    parent = {}
+    if from_state is not None:  # checked before any compute, also when resuming
+        system, parent = restart_state(from_state, cfg)
     if ckpt.exists():  # resume: the run restores the system and its observers from here
         system, _ = ParticleSystem.load(ckpt)
-    else:
+    elif from_state is None:  # a fresh run: build the chute (a restart has its system already)
         if base_file is not None:
             base_file = Path(base_file)
             if not base_file.exists():
@@ -283,7 +339,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
                    checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
     # a resumed run restores its monitor (and this value) from the checkpoint
-    min_onset = startup_time(system, p["theta"]) if system.time == 0.0 else 0.0
+    min_onset = (startup_time(system, p["theta"]) if system.time == 0.0 and from_state is None
+                 else 0.0)
     profile_obs, monitor_obs = _observers(p, cfg, run.series, min_onset)
     run.observers.append(profile_obs)
     if p["early_stop"]:
@@ -318,6 +375,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     else:
         t_from = max(0.0, t_now - p["averaging_time"])
     attrs = provenance_attrs(config=p, **{k: v for k, v in p.items() if v is not None})
+    attrs.update(parent)
     attrs.update(stop_reason=run.stop_reason, n_flow=int((~run.system.fixed).sum()),
                  n_base=int(run.system.fixed.sum()), dt=run.system.dt, t_final=t_now,
                  flow_state=final["flow_state"], steady_start=final["steady_start"],
@@ -351,6 +409,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
             k: v for k, v in seg.items() if k not in ("time", "value")},
         "provenance": {k: attrs[k] for k in ("granflow_version", "git_commit", "config_hash")},
     }
+    if parent:
+        summary["parent"] = parent
     where = f"theta = {p['theta']:g} deg, H = {p['H']:g}, lambda = {p['lam']:g}" + (
         f", sigma = {p['sigma']:g}, phi0 = {p['phi0']:g}" if p.get("phi0", 1.0) < 1 else "")
     cfconventions.apply(

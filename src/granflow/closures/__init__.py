@@ -10,7 +10,8 @@
 """
 
 from .compare import compare_libraries, format_comparison
-from .evaluate import K, Ps, alpha, closure_status, density, froude, hstop, mu, mu_I
+from .evaluate import (K, Ps, alpha, closure_parameters, closure_status, density, diffusivity,
+                       froude, hstop, mu, mu_I)
 from .library import (build_library_dataset, campaign_table, content_hash, library_path,
                       library_versions, open_library, write_library)
 from .schema import KINDS, SCHEMA_NAME, SCHEMA_VERSION
@@ -18,6 +19,7 @@ from .schema import KINDS, SCHEMA_NAME, SCHEMA_VERSION
 __all__ = [
     "write_library", "open_library", "build_library_dataset", "campaign_table", "content_hash",
     "library_path", "library_versions", "KINDS", "SCHEMA_NAME", "SCHEMA_VERSION",
-    "hstop", "froude", "mu", "alpha", "K", "density", "Ps", "mu_I",
+    "hstop", "froude", "mu", "alpha", "K", "density", "Ps", "mu_I", "diffusivity",
+    "closure_parameters",
     "compare_libraries", "format_comparison",
 ]

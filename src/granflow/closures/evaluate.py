@@ -40,6 +40,7 @@ K(lib, theta)                                  Eq. (53)
 density(lib, theta)                            Eq. (52), bulk density rho_c in m d-3
 Ps(lib, sigma)                                 T-eq. (29)
 mu_I(lib, I)                                   seed 001 Eq. (2.13)
+diffusivity(lib, u_bar, h, d_mean)             D = c_D (u_bar/h) d^2 (self-diffusion in z)
 =============================================  ==============================================
 """
 
@@ -152,6 +153,18 @@ def _closure(lib, kind, lam=None, contact_law=None, allow_unidentified=False) ->
             if np.isfinite(row).any():
                 ens.append(dict(zip(names, map(float, row))))
     return Closure(kind, params, form, status, sel, ens)
+
+
+def closure_parameters(lib, kind, lam=None, contact_law=None, *,
+                       allow_unidentified=False) -> Closure:
+    """The stored cell of one closure: parameters, form, status and parameter ensemble.
+
+    For consumers that evaluate a closure many times with the same parameters (the continuum
+    models of :mod:`granflow.continuum`), after checking their inputs once with the evaluators
+    above.  Refuses a closure that is not ``ok``/``reduced`` exactly like the evaluators
+    (``allow_unidentified=True`` to inspect it).
+    """
+    return _closure(lib, kind, lam, contact_law, allow_unidentified)
 
 
 def _check_range(lib, kind, var, values, sel, extrapolate):
@@ -449,6 +462,19 @@ def mu_I(lib, I, *, contact_law=None, extrapolate=False, uncertainty=False,
                      long_name="local friction mu(I)")
 
 
+def diffusivity(lib, u_bar, h, *, d_mean=1.0, contact_law=None, extrapolate=False,
+                uncertainty=False, allow_unidentified=False, impossible="raise"):
+    """Self-diffusivity normal to the base D = c_D (u_bar/h) d_mean^2 (library kind
+    ``diffusivity``; :mod:`granflow.coarse.diffusion`), e.g. for T-eq. (27).  ``d_mean``: the
+    mean particle diameter of the flow (volume-weighted for a mixture)."""
+    c = _closure(lib, "diffusivity", None, contact_law, allow_unidentified)
+    dm = np.asarray(d_mean, dtype=float)
+    return _evaluate(lib, c, lambda p, uu, hh: p["c_D"] * uu / hh * dm ** 2,
+                     {"u_bar": u_bar, "h": h}, extrapolate=extrapolate, uncertainty=uncertainty,
+                     impossible=impossible, physical=_negative, free=("c_D",),
+                     units=U.DIFFUSIVITY, long_name="self-diffusivity D normal to the base")
+
+
 def closure_status(lib) -> "pd.DataFrame":
     """One row per stored closure cell and parameter: value, stderr, status and reason."""
     import pandas as pd
@@ -510,6 +536,9 @@ class ClosuresAccessor:
 
     def mu_I(self, I, **kw):
         return mu_I(self._ds, I, **kw)
+
+    def diffusivity(self, u_bar, h, **kw):
+        return diffusivity(self._ds, u_bar, h, **kw)
 
     def status(self):
         return closure_status(self._ds)

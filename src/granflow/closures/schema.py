@@ -131,4 +131,12 @@ KINDS = {
          "mu_d": (U.DIMENSIONLESS, "dynamic friction mu_d"),
          "I0": (U.DIMENSIONLESS, "reference inertial number I0")}, U.DIMENSIONLESS,
         {"I": (U.DIMENSIONLESS, "inertial number I")}),
+    # self-diffusion normal to the base of tagged particles in steady flow (granflow.coarse.
+    # diffusion), for the time scale of the segregation-remixing equation (T-eq. 27)
+    "diffusivity": KindSpec(
+        (CONTACT_LAW_DIM,), "self-diffusion D = c_D (u_bar/h) d^2 (shear-rate scaling)",
+        {"c_D": (U.DIMENSIONLESS, "self-diffusion coefficient c_D = D h / (u_bar d^2)")},
+        U.DIFFUSIVITY,
+        {"h": (U.LENGTH, "flow height h"), "u_bar": (U.VELOCITY, "depth-averaged velocity"),
+         **_ANGLE_RANGE}),
 }

@@ -1,0 +1,734 @@
+"""Particle runs that test the continuum models, and their comparisons with the predictions.
+
+The closure library is fitted to steady uniform runs; these runs are *not* in it:
+
+* **Change of inclination** (:func:`run_switch`, :func:`compare_switch`): a steady campaign run
+  at theta1 restarted from its ``final_state.npz`` at theta2 (``granflow simulate --from``),
+  with tracer heights recorded for the self-diffusivity.  Compared with the uniform-layer ODE
+  (:func:`granflow.continuum.switch_prediction`) started from the parent's h and u_bar: the new
+  steady u_bar and the e-folding time of the transient (the same exponential fit on both).
+* **Long chute** (:func:`build_long_chute`, :func:`run_long_chute`, :func:`compare_long_chute`):
+  steady states of small periodic boxes on the same rough base tiled along x (a few tiles of a
+  thicker flow make a bump), run with x-resolved depth-integrated coarse-graining
+  (:mod:`granflow.coarse.columns`), and the shallow-layer solver started from the same h(x),
+  u_bar(x): positions of the peak and of the front over time.
+* **Segregation** (:func:`compare_segregation`): the campaign's bidisperse runs' indicator s(t)
+  against T-eq. (27) with the library's Ps and the measured diffusivity D (both flux models).
+* **Diffusivity** (:func:`diffusivity_fit`): D of the switch runs' steady windows ->
+  a ``diffusivity`` closure, added to a new version of the campaign's library
+  (:func:`library_with_diffusivity`).
+
+Command line: ``python -m granflow.continuum.experiments {switch,long-chute,diffusivity,
+compare} ...`` (``-h`` for the arguments); the slow tests in ``tests/test_continuum_slow.py``
+run the comparisons with the issue's tolerances.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from .. import units as U
+from ..provenance import atomic_to_netcdf, atomic_write_bytes
+
+#: tolerances of the comparisons (issue 17)
+TOL_STEADY_U = 0.05
+TOL_TAU = 0.25
+TOL_POSITION = 0.15
+TOL_HALF_TIME = 0.20
+
+
+def _summary(run_dir) -> dict:
+    return json.loads((Path(run_dir) / "summary.json").read_text())
+
+
+def _json_write(path, obj):
+    def default(x):
+        if isinstance(x, (np.floating, np.integer)):
+            return x.item()
+        if isinstance(x, np.ndarray):
+            return x.tolist()
+        return str(x)
+    atomic_write_bytes(path, json.dumps(obj, indent=1, default=default).encode())
+
+
+# ----------------------------------------------------------------------------- switches
+def run_switch(parent_dir, theta2: float, out_dir, *, t_end: float = 250.0,
+               tracer_interval: float = 0.5, threads: int = 1, **overrides) -> dict:
+    """Restart the steady run in ``parent_dir`` at ``theta2`` (its parameters otherwise);
+    records tracer heights every ``tracer_interval`` into ``tracers.npz``."""
+    from ..coarse.diffusion import TracerObserver
+    from ..simulate import simulate
+
+    parent_dir, out_dir = Path(parent_dir), Path(out_dir)
+    ps = _summary(parent_dir)
+    params = {k: v for k, v in ps["params"].items()}
+    params.update(theta=float(theta2), t_end=float(t_end), **overrides)
+    sample = params["t_c"] / 2.0 if params.get("sample_interval") is None else \
+        params["sample_interval"]
+    tracer = TracerObserver(every=max(1, int(round(tracer_interval / sample))))
+    res = simulate(params, out_dir, threads=threads, from_state=parent_dir / "final_state.npz",
+                   extra_observers=[tracer])
+    t, z, d = tracer.arrays()
+    np.savez(out_dir / "tracers.npz", time=t, z=z, diameter=d)
+    return res
+
+
+def switch_measurement(parent_dir, child_dir) -> dict:
+    """Particle-run numbers of one switch: parent h, u_bar; child steady u_bar (if steady),
+    the u_mean(t) transient and its exponential fit."""
+    from .uniform import fit_relaxation
+
+    ps, cs = _summary(parent_dir), _summary(child_dir)
+    series = xr.open_dataset(Path(child_dir) / "series.nc")
+    t = series["t"].values
+    u = series["u_mean"].values
+    # bin to 1 time unit (u_mean fluctuates on the collision scale)
+    edges = np.arange(0.0, t[-1] + 1.0, 1.0)
+    idx = np.digitize(t, edges) - 1
+    tb = np.array([t[idx == k].mean() for k in range(len(edges)) if np.any(idx == k)])
+    ub = np.array([u[idx == k].mean() for k in range(len(edges)) if np.any(idx == k)])
+    pu = xr.open_dataset(Path(parent_dir) / "series.nc")["u_mean"].values
+    u0_mean = float(np.mean(pu[-int(0.2 * len(pu)):]))     # parent's steady u_mean
+    out = {"parent": os.fspath(parent_dir), "child": os.fspath(child_dir),
+           "H": ps["params"]["H"], "theta1": ps["params"]["theta"],
+           "theta2": cs["params"]["theta"], "h": ps["depth_averages"]["flow_height"],
+           "u0": ps["depth_averages"]["u_bar"], "u0_mean_particles": u0_mean,
+           "child_state": cs["flow_state"], "child_steady_start": cs["steady_start"],
+           "u_steady": cs["depth_averages"].get("u_bar") if cs["flow_state"] == "steady"
+           else math.nan, "u_steady_sem": cs["depth_averages"].get("u_bar_sem", math.nan),
+           "h2": cs["depth_averages"].get("flow_height", math.nan),
+           "t": tb.tolist(), "u_mean": ub.tolist(), "t_final": cs["t_final"]}
+    early = (t > 0) & (t <= 5.0)       # initial acceleration: slope over the first 5 units
+    out["accel0"] = float(np.polyfit(t[early], u[early], 1)[0]) if early.sum() > 3 else math.nan
+    try:
+        fit = fit_relaxation(tb, ub, u0_mean)
+        out.update(tau=fit["tau"], tau_stderr=fit["tau_stderr"], fit_u_inf=fit["u_inf"],
+                   fit_rms=fit["rms"])
+    except (ValueError, RuntimeError) as exc:
+        out.update(tau=math.nan, tau_stderr=math.nan, fit_error=str(exc))
+    return out
+
+
+def compare_switch(lib, parent_dir, child_dir, *, allow_unidentified=True, extrapolate=False,
+                   n_ensemble=100) -> dict:
+    """Particle run vs uniform-layer ODE for one switch (module docstring)."""
+    from .uniform import switch_prediction
+
+    m = switch_measurement(parent_dir, child_dir)
+    t_end = max(float(m["t"][-1]), 1.0)
+    # Eq. (34) conserves rho_bar h: at theta2 the layer holds the same mass at the density of
+    # theta2 (library density closure, Eq. 52 or its reduced form); the ODE keeps that h
+    try:
+        rho1, rho2 = (float(lib.closures.density(th, extrapolate=True,
+                                                 allow_unidentified=allow_unidentified))
+                      for th in (m["theta1"], m["theta2"]))
+        h_ode = m["h"] * rho1 / rho2
+    except ValueError:
+        h_ode = m["h"]
+    m["h_ode"] = h_ode
+    try:
+        pred = switch_prediction(lib, h=h_ode, u0=m["u0"], theta=m["theta2"], t_end=t_end,
+                                 allow_unidentified=allow_unidentified, extrapolate=extrapolate,
+                                 n_ensemble=n_ensemble, fit_t_max=t_end)
+        refused = ""
+    except ValueError as exc:   # outside the fitted range/hull: say so, then extrapolate
+        refused = str(exc)
+        pred = switch_prediction(lib, h=h_ode, u0=m["u0"], theta=m["theta2"], t_end=t_end,
+                                 allow_unidentified=allow_unidentified, extrapolate=True,
+                                 n_ensemble=n_ensemble, fit_t_max=t_end)
+    g = pred.sel(stat="value")
+    out = dict(m)
+    out.update(ode_u_steady=float(g.u_steady), ode_u_steady_std=float(
+        pred.u_steady.sel(stat="std")), ode_tau=float(g.tau),
+        ode_tau_std=float(pred.tau.sel(stat="std")), ode_tau_linear=float(g.tau_linear),
+        ode_t=pred.t.values.tolist(), ode_u=g.u_bar.values.tolist(),
+        ode_u_low=pred.u_bar.sel(stat="low").values.tolist(),
+        ode_u_high=pred.u_bar.sel(stat="high").values.tolist(),
+        closure_status={k[len("closure_status_"):]: v for k, v in pred.attrs.items()
+                        if k.startswith("closure_status_")},
+        extrapolated=refused)
+    tt, uu = pred.t.values, g.u_bar.values
+    early = (tt > 0) & (tt <= 5.0)
+    out["ode_accel0"] = float(np.polyfit(tt[early], uu[early], 1)[0])
+    out["err_u_steady"] = (out["ode_u_steady"] / out["u_steady"] - 1.0
+                           if math.isfinite(out["u_steady"]) else math.nan)
+    out["err_tau"] = (out["ode_tau"] / out["tau"] - 1.0
+                      if math.isfinite(out.get("tau", math.nan)) else math.nan)
+    out["pass_u_steady"] = bool(abs(out["err_u_steady"]) <= TOL_STEADY_U)
+    out["pass_tau"] = bool(abs(out["err_tau"]) <= TOL_TAU)
+    return out
+
+
+# ----------------------------------------------------------------------------- diffusivity
+def diffusivity_measurements(child_dirs) -> list[dict]:
+    """D of every switch run that ended steady (tracers over its steady window)."""
+    from ..coarse.diffusion import self_diffusivity
+
+    rows = []
+    for d in child_dirs:
+        d = Path(d)
+        s = _summary(d)
+        if s["flow_state"] != "steady" or not (d / "tracers.npz").exists():
+            continue
+        with np.load(d / "tracers.npz") as f:
+            t, z = f["time"], f["z"]
+        t_from = float(s["profile_time_from"])
+        if t[-1] - t_from < 20.0:
+            continue
+        r = self_diffusivity(t, z, t_from, tau_fit=(2.0, min(10.0, 0.5 * (t[-1] - t_from))))
+        da = s["depth_averages"]
+        rows.append(dict(run=os.fspath(d), theta=s["params"]["theta"], H=s["params"]["H"],
+                         h=da["flow_height"], u_bar=da["u_bar"], D=r["D"],
+                         D_stderr=r["D_stderr"], c_D=r["D"] * da["flow_height"] / da["u_bar"],
+                         t_from=t_from, t_to=r["t_to"], n_particles=r["n_particles"]))
+    return rows
+
+
+def diffusivity_fit(rows, contact_law="linear"):
+    from ..coarse.diffusion import fit_diffusivity
+
+    return fit_diffusivity([r["D"] for r in rows], [r["D_stderr"] for r in rows],
+                           [r["u_bar"] for r in rows], [r["h"] for r in rows],
+                           theta=[r["theta"] for r in rows], contact_law=contact_law,
+                           ids=[r["run"] for r in rows],
+                           selection=f"{len(rows)} steady switch runs (tracers over the steady "
+                                     "window; not in the campaign's fits)")
+
+
+def library_with_diffusivity(campaign_dir, fit, out) -> dict:
+    """A new version of the campaign's library with the diffusivity closure added (every other
+    closure as fitted by the campaign); copied to ``out``."""
+    from ..campaign.collect import read_table
+    from ..campaign.fits import read_fits
+    from ..campaign.library import publish_library
+    from ..closures import open_library
+
+    campaign_dir = Path(campaign_dir)
+    manifest = json.loads((campaign_dir / "closures.json").read_text())
+    lib_path = Path(manifest["path"])
+    if not lib_path.is_absolute() and not lib_path.exists():
+        lib_path = campaign_dir.parent.parent / lib_path
+    old = open_library(lib_path)
+    fits = _flatten_fits(read_fits(campaign_dir / "fits.json"))
+    table = read_table(campaign_dir / "campaign_table.nc")
+    attrs = {k: old.attrs[k] for k in ("campaign", "excluded_runs_json", "library_note")
+             if k in old.attrs}
+    attrs["library_note"] = (attrs.get("library_note", "") + " diffusivity closure added from "
+                             "the continuum-comparison switch runs "
+                             "(granflow.continuum.experiments)").strip()
+    config = json.loads(old.attrs["config_json"]) if "config_json" in old.attrs else None
+    return publish_library(lib_path.parent, manifest["name"], fits + [fit], table, out=out,
+                           config=config, reductions=old.attrs.get("reductions_vs_paper"),
+                           attrs=attrs)
+
+
+def _flatten_fits(fits):
+    from ..fitting.result import FitResult
+
+    out, stack = [], [fits]
+    while stack:
+        it = stack.pop()
+        if isinstance(it, FitResult):
+            out.append(it)
+        elif isinstance(it, dict):
+            stack.extend(it.values())
+        elif isinstance(it, (list, tuple)):
+            stack.extend(it)
+    return out
+
+
+# ----------------------------------------------------------------------------- long chute
+def build_long_chute(tiles, base_file, Lx_tile: float, Ly: float, params: dict):
+    """ParticleSystem of a long periodic chute: the flow particles of the states in ``tiles``
+    (final_state.npz of runs over the same base ``base_file``, one per tile, in order along x)
+    shifted by k Lx_tile, on the base tiled len(tiles) times.  Flow particles overlapping
+    across a tile junction by more than 2 % of d are removed (reported).  Contact history
+    starts empty."""
+    from ..engine.system import ParticleSystem
+    from ..simulate import chute_config
+
+    cfg = chute_config(dict(params, Lx=Lx_tile * len(tiles), Ly=Ly))
+    base = np.load(base_file)
+    pos, vel, omega, diam = [], [], [], []
+    for k, st in enumerate(tiles):
+        s, _ = ParticleSystem.load(st)
+        flow = ~s.fixed
+        p = s.pos[flow].copy()
+        p[:, 0] = np.mod(p[:, 0], Lx_tile) + k * Lx_tile
+        pos.append(p)
+        vel.append(s.vel[flow])
+        omega.append(s.omega[flow])
+        diam.append(2 * s.radius[flow])
+    pos, vel, omega, diam = (np.concatenate(a) for a in (pos, vel, omega, diam))
+    L = Lx_tile * len(tiles)
+    # remove overlaps across the junctions (brute force near each junction)
+    drop = np.zeros(len(pos), bool)
+    for k in range(len(tiles)):
+        xj = k * Lx_tile
+        dxp = np.mod(pos[:, 0] - xj + 0.5 * L, L) - 0.5 * L
+        near = np.nonzero(np.abs(dxp) < 1.5)[0]
+        left, right = near[dxp[near] < 0], near[dxp[near] >= 0]
+        for i in right:
+            if drop[i]:
+                continue
+            d = pos[left] - pos[i]
+            d[:, 0] = np.mod(d[:, 0] + 0.5 * L, L) - 0.5 * L
+            d[:, 1] = np.mod(d[:, 1] + 0.5 * Ly, Ly) - 0.5 * Ly
+            r = np.sqrt((d ** 2).sum(axis=1))
+            if np.any((r < 0.5 * (diam[left] + diam[i]) - 0.02) & ~drop[left]):
+                drop[i] = True
+    keep = ~drop
+    pos, vel, omega, diam = pos[keep], vel[keep], omega[keep], diam[keep]
+    bpos = np.concatenate([base + [k * Lx_tile, 0.0, 0.0] for k in range(len(tiles))])
+    tab = cfg.interactions()
+    base_type = len(tab.type_names) - 1
+    sys_ = ParticleSystem(L, Ly, tab, gvec=cfg.gravity, skin=cfg.skin, use_wall=False,
+                          wall_type=base_type, steps_per_collision=cfg.steps_per_collision)
+    allpos = np.concatenate([pos, bpos])
+    alld = np.concatenate([diam, np.full(len(bpos), cfg.lam)])
+    ptype = np.concatenate([np.zeros(len(pos), np.int64), np.full(len(bpos), base_type)])
+    fixed = np.concatenate([np.zeros(len(pos), bool), np.ones(len(bpos), bool)])
+    sys_.set_particles(allpos, alld, density=U.RHO_PARTICLE, ptype=ptype, fixed=fixed)
+    sys_.vel[: len(pos)] = vel
+    sys_.omega[: len(pos)] = omega
+    sys_.initialize()
+    return sys_, int(drop.sum())
+
+
+def run_long_chute(tiles, base_file, Lx_tile, Ly, params, out_dir, *, t_end=60.0,
+                   dx=1.0, width=1.0, interval=1.0):
+    """Run the tiled chute to ``t_end`` with column coarse-graining every ``interval``."""
+    from ..coarse.columns import ColumnAccumulator, ColumnObserver
+    from ..engine.run import ChuteRun
+    from ..provenance import provenance_attrs
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    system, dropped = build_long_chute(tiles, base_file, Lx_tile, Ly, params)
+    L = system.Lx
+    acc = ColumnAccumulator(L, Ly, int(round(L / dx)), width=width)
+    sample = 0.5 * params["t_c"]
+    obs = ColumnObserver(acc, every=max(1, int(round(interval / sample))))
+    run = ChuteRun(system, t_end=t_end, checkpoint=out_dir / "checkpoint.npz",
+                   checkpoint_every_s=120.0, progress=False, observers=[obs])
+    run.try_resume()
+    run.run()
+    attrs = provenance_attrs(config={"tiles": [os.fspath(t) for t in tiles],
+                                     "Lx_tile": Lx_tile, "Ly": Ly, "t_end": t_end, **params},
+                             theta=params["theta"], Lx=L, Ly=Ly)
+    attrs.update(tiles=json.dumps([os.fspath(t) for t in tiles]), junction_overlaps_removed=dropped,
+                 n_flow=int((~system.fixed).sum()))
+    ds = run.observers[-1].acc.to_dataset(attrs)
+    atomic_to_netcdf(ds, out_dir / "columns.nc")
+    if (out_dir / "checkpoint.npz").exists():
+        (out_dir / "checkpoint.npz").unlink()
+    return ds
+
+
+def _smooth_periodic(h, n=5):
+    k = np.ones(n) / n
+    pad = np.concatenate([h[-n:], h, h[:n]])
+    return np.convolve(pad, k, mode="same")[n:-n]
+
+
+def feature_positions(x, h, x_prev=None, L=None):
+    """Peak position (max of the smoothed h) and front position (downstream crossing of the
+    level halfway between the smoothed minimum and maximum), unwrapped against ``x_prev``."""
+    hs = _smooth_periodic(np.asarray(h, float))
+    L = L if L is not None else float(x[-1] - x[0] + (x[1] - x[0]))
+    k = int(np.argmax(hs))
+    level = 0.5 * (hs.max() + np.percentile(hs, 20))
+    n = len(hs)
+    j = k
+    for step in range(n):
+        a, b = (k + step) % n, (k + step + 1) % n
+        if hs[a] >= level > hs[b]:
+            frac = (hs[a] - level) / (hs[a] - hs[b])
+            j = x[a] + frac * (x[1] - x[0]) + (L if b < a else 0.0) + (L if a < k else 0.0)
+            break
+    peak, front = float(x[k]), float(j)
+    if x_prev is not None:
+        peak += L * round((x_prev[0] - peak) / L)
+        front += L * round((x_prev[1] - front) / L)
+    return peak, front
+
+
+def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
+                       allow_unidentified=True, extrapolate=True, out_nc=None) -> dict:
+    """Shallow-layer solver from the particle run's initial h(x), u_bar(x); positions of peak
+    and front over time, particle vs solver."""
+    from ..coarse.columns import column_fields
+    from .closures import FlowClosures
+    from .shallow import shallow_layer
+
+    part = column_fields(xr.open_dataset(columns_nc), rho_bar)
+    x = part.x.values
+    times = part.t.values - part.t.values[0]
+    c = FlowClosures.from_library(lib, theta, allow_unidentified=allow_unidentified)
+    h0 = part.h.values[0]
+    u0 = np.nan_to_num(part.u_bar.values[0])
+    rng = c.fitted_ranges()
+    sol = shallow_layer(c, x, h0, u0, float(times[-1]), times=times, check=True,
+                        extrapolate=extrapolate)
+    if out_nc is not None:
+        atomic_to_netcdf(sol, out_nc)
+    L = float(part.attrs.get("cg_Lx", x[-1] + x[0]))
+    rows = []
+    prev_p = prev_s = None
+    for k, t in enumerate(times):
+        fp = feature_positions(x, part.h.values[k], prev_p, L)
+        fs = feature_positions(x, sol.h.values[k], prev_s, L)
+        prev_p, prev_s = fp, fs
+        rows.append(dict(t=float(t), peak_particles=fp[0], front_particles=fp[1],
+                         peak_solver=fs[0], front_solver=fs[1]))
+    r0 = rows[0]
+    for r in rows:
+        for f in ("peak", "front"):
+            dp = r[f"{f}_particles"] - r0[f"{f}_particles"]
+            ds_ = r[f"{f}_solver"] - r0[f"{f}_solver"]
+            r[f"{f}_travel_particles"] = dp
+            r[f"{f}_travel_solver"] = ds_
+            r[f"{f}_err"] = ds_ / dp - 1.0 if abs(dp) > 1e-9 else math.nan
+    snap = np.unique(np.linspace(0, len(times) - 1, 5).round().astype(int))
+    profiles = {"x": x.tolist(), "t": [float(times[k]) for k in snap],
+                "h_particles": [part.h.values[k].tolist() for k in snap],
+                "h_solver": [sol.h.values[k].tolist() for k in snap]}
+    late = [r for r in rows if r["t"] >= 0.25 * times[-1]]
+    worst = {f: max(abs(r[f"{f}_err"]) for r in late) for f in ("peak", "front")}
+    return {"rows": rows, "profiles": profiles, "worst_err_after_quarter": worst,
+            "rho_bar": rho_bar, "closure_K": c.K, "shallow_layer_attrs": {
+                k: v for k, v in sol.attrs.items() if k.startswith(("closure_", "scheme", "n_"))},
+            "theta": theta, "closure_status": {k[len("closure_status_"):]: v
+                                               for k, v in sol.attrs.items()
+                                               if k.startswith("closure_status_")},
+            "fraction_outside_fitted_range_max": float(np.nanmax(
+                sol.fraction_outside_fitted_range.values)) if rng else math.nan,
+            "pass": bool(max(worst.values()) <= TOL_POSITION)}
+
+
+# ----------------------------------------------------------------------------- segregation
+def segregation_measurement(run_dir, smooth_bins: int = 3) -> dict:
+    """s(t), its start after the insertion fall (t0 = the run's startup time), plateau and
+    half-time of one bidisperse run."""
+    from .segregation import half_time
+
+    s = _summary(run_dir)
+    ser = xr.open_dataset(Path(run_dir) / "series.nc")
+    t = ser["segregation_time"].values
+    v = ser["segregation_indicator"].values
+    t0 = float(ser.attrs.get("steady_min_onset", 0.0))
+    k = np.ones(smooth_bins) / smooth_bins
+    vs = np.convolve(np.pad(v, (smooth_bins // 2,), mode="edge"), k, mode="valid")
+    after = t >= t0
+    s0 = float(vs[after][0])
+    plateau = float(s["segregation"]["plateau"])
+    th = half_time(t[after], vs[after], s0, plateau)
+    return {"run": os.fspath(run_dir), "sigma": s["params"]["sigma"], "phi0": s["params"]["phi0"],
+            "h": s["depth_averages"]["flow_height"], "u_bar": s["depth_averages"]["u_bar"],
+            "t0": t0, "s0": s0, "plateau": plateau, "t_half": th - t0,
+            "segregation_steady": bool(s["segregation"]["steady"]),
+            "t": (t[after] - t0).tolist(), "s": (vs[after] - s0).tolist()}
+
+
+def segregation_Ps_at(lib, sigma, *, contact_law=None, allow_unidentified=False):
+    """Ps of the library's per-size-ratio ``segregation`` closure at ``sigma`` and its status.
+
+    The library has no evaluator for this per-run kind (``Ps(lib, sigma)`` evaluates the fitted
+    law ``Ps_law``), so the status rules of :mod:`granflow.closures.evaluate` are applied here:
+    a ``failed`` cell always raises, one that is not ``ok``/``reduced`` raises unless
+    ``allow_unidentified`` (the status is returned and recorded by the caller)."""
+    from ..closures.evaluate import _resolve_contact_law
+
+    sigmas = np.asarray(lib["sigma"].values, dtype=float)
+    hit = np.flatnonzero(np.abs(sigmas - float(sigma)) <= 1e-9)
+    if hit.size == 0:
+        raise ValueError(f"sigma = {sigma:g} has no segregation closure (library sigma "
+                         f"{sigmas.tolist()})")
+    sel = {"contact_law": _resolve_contact_law(lib, contact_law)}
+    cell = {k: v for k, v in sel.items() if k in lib["segregation_Ps"].dims}
+    Ps = float(lib["segregation_Ps"].sel(cell).isel(sigma=int(hit[0])).item())
+    status = str(lib["segregation_status"].sel(cell).isel(sigma=int(hit[0])).item())
+    if status == "failed" or (status not in ("ok", "reduced") and not allow_unidentified):
+        raise ValueError(f"segregation closure at sigma = {sigma:g} is {status}"
+                         + ("" if status == "failed"
+                            else " (pass allow_unidentified=True to use it anyway)"))
+    return Ps, status
+
+
+def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
+                        n_ensemble: int = 50) -> dict:
+    """One bidisperse run vs T-eq. (27) with both fluxes: Ps (symmetric, library) and
+    (Ps, kappa) (asymmetric, the run's fit in ``segregation_fits.json``), D from the library's
+    diffusivity at the run's u_bar, h and volume-weighted mean diameter.
+
+    Non-ok closures: with ``allow_unidentified=True`` (the default here, as the comparison is
+    meant to show how such closures predict) an ``unidentified`` Ps or diffusivity is used and
+    its status is recorded (``Ps_status``); ``failed`` closures always raise."""
+    from .segregation import segregation_layer
+
+    m = segregation_measurement(run_dir)
+    sigma, phi0 = m["sigma"], m["phi0"]
+    d_mean = phi0 * 1.0 + (1.0 - phi0) / sigma
+    Dds = lib.closures.diffusivity(m["u_bar"], m["h"], d_mean=d_mean, uncertainty=True,
+                                   allow_unidentified=allow_unidentified)
+    D, D_std = float(Dds["value"]), float(Dds["std"])
+    Ps, Ps_status = segregation_Ps_at(lib, sigma, allow_unidentified=allow_unidentified)
+    fit = next(f for f in seg_fits if abs(f["fit"]["coords"].get("sigma", -1) - sigma) < 1e-9)
+    ex = fit["fit"]["extra"]
+    prof = fit["profile"]
+    t_end = max(m["t"][-1], 1.0)
+    out = dict(m)
+    out.update(d_mean=d_mean, D=D, D_std=D_std, Ps=Ps, Ps_status=Ps_status,
+               Ps_asym=ex.get("asymmetric_Ps"), kappa=ex.get("asymmetric_kappa"))
+    zeta = np.asarray(prof["zeta"], float)
+    phi_p = np.asarray(prof["phi"], float)
+    for name, kw in (("symmetric", dict(Ps=Ps, flux="symmetric")),
+                     ("asymmetric", dict(Ps=ex.get("asymmetric_Ps", Ps), flux="asymmetric",
+                                         kappa=min(max(float(ex.get("asymmetric_kappa", 0.0)),
+                                                       0.0), 0.99)))):
+        res = segregation_layer(D=D, h=m["h"], phi0=phi0, t_end=t_end, n=200, n_out=201, **kw)
+        # D's uncertainty: t_half scales as 1/D exactly (time scale h^2/D)
+        th = float(res.t_half)
+        phi_model = np.interp(zeta, res.zeta.values, res.phi.values[-1])
+        out[name] = {"t_half": th, "t_half_std": th * D_std / D,
+                     "s_final": float(res.indicator.values[-1]),
+                     "s_steady": float(res.indicator_steady), "t": res.t.values.tolist(),
+                     "s": res.indicator.values.tolist(),
+                     "err_t_half": th / m["t_half"] - 1.0 if m["t_half"] > 0 else math.nan,
+                     "phi_rms_vs_particles": float(np.sqrt(np.mean((phi_model - phi_p) ** 2))),
+                     "phi_model": phi_model.tolist()}
+        out[name]["pass_t_half"] = bool(abs(out[name]["err_t_half"]) <= TOL_HALF_TIME)
+    out["zeta"] = zeta.tolist()
+    out["phi_particles"] = phi_p.tolist()
+    return out
+
+
+# ----------------------------------------------------------------------------- all comparisons
+def parent_of(child_dir) -> Path:
+    """The parent run folder of a switch run (from its summary's provenance)."""
+    return Path(_summary(child_dir)["parent"]["parent_state"]).parent
+
+
+def compare_all(lib_path, campaign_dir, switch_dirs, long_chute_dir, out_json, figures=None,
+                *, long_chute_theta=None, n_ensemble=100) -> dict:
+    """Every comparison of the module docstring into one JSON (and PNG figures)."""
+    from ..closures import open_library
+
+    lib = open_library(lib_path)
+    st = lib.closures.status()
+    status = {k: sorted(set(g["status"])) for k, g in st.groupby("kind")}
+    res = {"library": os.fspath(lib_path), "library_content_hash": lib.attrs["content_hash"],
+           "closure_status": status, "switches": [], "long_chute": None, "segregation": []}
+    for d in switch_dirs:
+        try:
+            res["switches"].append(compare_switch(lib, parent_of(d), d, n_ensemble=n_ensemble))
+        except Exception as exc:  # keep the others; the failure is reported
+            res["switches"].append({"child": os.fspath(d), "error": f"{type(exc).__name__}: {exc}"})
+    if long_chute_dir is not None and (Path(long_chute_dir) / "columns.nc").exists():
+        cols = xr.open_dataset(Path(long_chute_dir) / "columns.nc")
+        tiles = json.loads(cols.attrs["tiles"])
+        base_run = Path(tiles[-1]).parent
+        rho = _summary(base_run)["depth_averages"]["rho_bar"]
+        theta = long_chute_theta or _summary(base_run)["params"]["theta"]
+        res["long_chute"] = compare_long_chute(lib, Path(long_chute_dir) / "columns.nc", rho,
+                                               theta, out_nc=Path(long_chute_dir) /
+                                               "shallow_layer.nc")
+    seg_fits = json.loads((Path(campaign_dir) / "segregation_fits.json").read_text())
+    for run in sorted(Path(campaign_dir).glob("segregation/**/summary.json")):
+        try:
+            res["segregation"].append(compare_segregation(lib, run.parent, seg_fits))
+        except Exception as exc:
+            res["segregation"].append({"run": os.fspath(run.parent),
+                                       "error": f"{type(exc).__name__}: {exc}"})
+    _json_write(out_json, res)
+    if figures is not None:
+        plot_all(res, figures)
+    return res
+
+
+def plot_all(res: dict, figures) -> list:
+    """PNG figures of the comparisons (switches, long chute, segregation)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figures = Path(figures)
+    figures.mkdir(parents=True, exist_ok=True)
+    out = []
+    sw = [s for s in res["switches"] if "error" not in s]
+    if sw:
+        fig, axes = plt.subplots(1, len(sw), figsize=(3.2 * len(sw), 2.8), squeeze=False)
+        for ax, s in zip(axes[0], sw):
+            scale = s["u0"] / s["u0_mean_particles"]
+            ax.plot(s["t"], np.asarray(s["u_mean"]) * scale, ".", ms=2, color="k",
+                    label="particles (u_mean, scaled)")
+            ax.fill_between(s["ode_t"], s["ode_u_low"], s["ode_u_high"], color="C0", alpha=0.3)
+            ax.plot(s["ode_t"], s["ode_u"], color="C0", label="ODE (library)")
+            if math.isfinite(s["u_steady"]):
+                ax.axhline(s["u_steady"], color="k", ls=":", lw=0.8)
+            ax.set_title(f"H={s['H']:g}: {s['theta1']:g} -> {s['theta2']:g} deg", fontsize=8)
+            ax.set_xlabel("t since switch")
+        axes[0][0].set_ylabel("u_bar")
+        axes[0][0].legend(fontsize=6)
+        fig.tight_layout()
+        p = figures / "switch_transients.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        out.append(p)
+    lc = res.get("long_chute")
+    if lc:
+        rows = lc["rows"]
+        t = [r["t"] for r in rows]
+        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9.5, 3.2))
+        pr = lc.get("profiles")
+        if pr:
+            for k, tk in enumerate(pr["t"]):
+                col = plt.cm.viridis(k / max(len(pr["t"]) - 1, 1))
+                ax2.plot(pr["x"], pr["h_particles"][k], ".", ms=2, color=col)
+                ax2.plot(pr["x"], pr["h_solver"][k], "-", lw=1, color=col, label=f"t = {tk:g}")
+            ax2.set_xlabel("x")
+            ax2.set_ylabel("h (points: particles, lines: solver)")
+            ax2.legend(fontsize=6)
+        for f, c in (("peak", "C1"), ("front", "C2")):
+            ax.plot(t, [r[f"{f}_travel_particles"] for r in rows], "o", ms=3, color=c,
+                    label=f"{f}: particles")
+            ax.plot(t, [r[f"{f}_travel_solver"] for r in rows], "-", color=c,
+                    label=f"{f}: shallow-layer solver")
+        ax.set_xlabel("t")
+        ax.set_ylabel("distance travelled (d)")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        p = figures / "long_chute_positions.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        out.append(p)
+    seg = [s for s in res["segregation"] if "error" not in s]
+    if seg:
+        fig, axes = plt.subplots(2, len(seg), figsize=(2.8 * len(seg), 5.0), squeeze=False)
+        for k, s in enumerate(seg):
+            ax = axes[0][k]
+            ax.plot(s["t"], s["s"], ".", ms=2, color="k", label="particles")
+            for name, c in (("symmetric", "C0"), ("asymmetric", "C3")):
+                ax.plot(s[name]["t"], s[name]["s"], color=c, label=name)
+            ax.set_title(f"sigma = {s['sigma']:g}", fontsize=8)
+            ax.set_xlabel("t - t0")
+            ax = axes[1][k]
+            ax.plot(s["phi_particles"], s["zeta"], "k.", ms=2)
+            ax.plot(s["symmetric"]["phi_model"], s["zeta"], "C0")
+            ax.plot(s["asymmetric"]["phi_model"], s["zeta"], "C3--")
+            ax.set_xlabel("phi")
+        axes[0][0].set_ylabel("s(t) - s(t0)")
+        axes[1][0].set_ylabel("z / h")
+        axes[0][0].legend(fontsize=6)
+        fig.tight_layout()
+        p = figures / "segregation.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        out.append(p)
+    return out
+
+
+# ----------------------------------------------------------------------------- command line
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m granflow.continuum.experiments",
+                                 description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("switch", help="restart a steady run at a new inclination")
+    p.add_argument("parent")
+    p.add_argument("theta2", type=float)
+    p.add_argument("--out", required=True)
+    p.add_argument("--t-end", type=float, default=250.0)
+    p = sub.add_parser("long-chute", help="tiled long chute with column coarse-graining")
+    p.add_argument("--tiles", nargs="+", required=True, help="run folders, one per tile")
+    p.add_argument("--base", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--t-end", type=float, default=60.0)
+    p = sub.add_parser("diffusivity", help="fit D over switch runs; add it to the library")
+    p.add_argument("--runs", nargs="+", required=True)
+    p.add_argument("--campaign", required=True, help="campaign results folder")
+    p.add_argument("--out", required=True, help="path of the library copy")
+    p = sub.add_parser("compare", help="all comparisons -> JSON and figures")
+    p.add_argument("--lib", required=True, help="closure library (with the diffusivity)")
+    p.add_argument("--campaign", required=True)
+    p.add_argument("--switch-runs", nargs="*", default=[])
+    p.add_argument("--long-chute", default=None)
+    p.add_argument("--out", required=True, help="comparison JSON")
+    p.add_argument("--figures", default=None)
+    a = ap.parse_args(argv)
+    if a.cmd == "switch":
+        res = run_switch(a.parent, a.theta2, a.out, t_end=a.t_end)
+        print(f"{a.out}: {res['flow_state']} at t = {res['t_final']:.4g} ({res['wall_s']:.0f} s)")
+    elif a.cmd == "long-chute":
+        ps = _summary(a.tiles[0])["params"]
+        run_long_chute([Path(t) / "final_state.npz" for t in a.tiles], a.base, ps["Lx"],
+                       ps["Ly"], ps, a.out, t_end=a.t_end)
+        print(f"{a.out}/columns.nc")
+    elif a.cmd == "diffusivity":
+        rows = diffusivity_measurements(a.runs)
+        fit = diffusivity_fit(rows)
+        info = library_with_diffusivity(a.campaign, fit, a.out)
+        _json_write(Path(a.out).with_suffix(".diffusivity.json"),
+                    {"runs": rows, "c_D": fit.params["c_D"], "c_D_stderr": fit.stderr["c_D"],
+                     "status": fit.state, "library": info})
+        print(f"c_D = {fit.params['c_D']:.4g} +- {fit.stderr['c_D']:.2g} ({fit.state}); "
+              f"library {info['path']}")
+    elif a.cmd == "compare":
+        res = compare_all(a.lib, a.campaign, a.switch_runs, a.long_chute, a.out, a.figures)
+        print(format_tables(res))
+    return 0
+
+
+def format_tables(res: dict) -> str:
+    """The comparison tables as plain text (the report's must-show tables)."""
+    lines = ["closure status: " + ", ".join(f"{k} {'/'.join(v)}"
+                                           for k, v in res["closure_status"].items()), "",
+             "theta1 -> theta2 switches (particle run vs uniform-layer ODE)",
+             f"{'H':>4} {'th1':>5} {'th2':>5} {'state':>9} {'u_part':>7} {'u_ODE':>13} {'err':>7}"
+             f" {'tau_part':>12} {'tau_ODE':>12} {'err':>7} {'a0_part':>8} {'a0_ODE':>8}"]
+    for s in res["switches"]:
+        if "error" in s:
+            lines.append(f"  {s['child']}: {s['error']}")
+            continue
+        lines.append(
+            f"{s['H']:4g} {s['theta1']:5g} {s['theta2']:5g} {s['child_state']:>9} "
+            f"{s['u_steady']:7.3f} {s['ode_u_steady']:6.3f}+-{s['ode_u_steady_std']:5.3f} "
+            f"{s['err_u_steady']:+7.1%} {s.get('tau', math.nan):6.1f}+-{s.get('tau_stderr', math.nan):4.1f}"
+            f" {s['ode_tau']:6.1f}+-{s['ode_tau_std']:4.1f} {s['err_tau']:+7.1%}"
+            f" {s.get('accel0', math.nan):+8.4f} {s.get('ode_accel0', math.nan):+8.4f}"
+            + ("  (extrapolated)" if s.get("extrapolated") else ""))
+    lc = res.get("long_chute")
+    if lc:
+        lines += ["", "long chute (distance travelled, particles vs solver)",
+                  f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} {'front_s':>8}"
+                  f" {'err':>7}"]
+        for r in lc["rows"]:
+            lines.append(f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
+                         f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
+                         f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
+                         f"{r['front_err']:+7.1%}")
+    lines += ["", "segregation (half-time after the start-up, final profile rms)",
+              f"{'sigma':>5} {'t_half_p':>8} {'sym':>14} {'err':>7} {'asym':>14} {'err':>7} "
+              f"{'rms_sym':>7} {'rms_asym':>8} {'D':>8} {'Ps':>6}"]
+    for s in res["segregation"]:
+        if "error" in s:
+            lines.append(f"  {s['run']}: {s['error']}")
+            continue
+        a, b = s["symmetric"], s["asymmetric"]
+        lines.append(f"{s['sigma']:5g} {s['t_half']:8.1f} {a['t_half']:7.1f}+-{a['t_half_std']:5.1f}"
+                     f" {a['err_t_half']:+7.1%} {b['t_half']:7.1f}+-{b['t_half_std']:5.1f} "
+                     f"{b['err_t_half']:+7.1%} {a['phi_rms_vs_particles']:7.3f} "
+                     f"{b['phi_rms_vs_particles']:8.3f} {s['D']:8.4f} {s['Ps']:6.2f}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

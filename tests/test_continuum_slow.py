@@ -1,0 +1,151 @@
+"""Continuum models against particle runs the closure library was not fitted on (slow).
+
+Needs the default campaign (``snakemake --cores 2``, ``results/default``) and the comparison
+runs of :mod:`granflow.continuum.experiments` under ``results/continuum`` (switch runs, the long
+chute); the runs missing are made here (soft species t_c = 0.02, 10 x 5 boxes; about 15 min on
+2 shared cores), then every comparison is computed afresh from the run folders.  Tolerances of
+issue 17: steady u_bar within 5 % and e-folding time within 25 % after a change of inclination;
+peak/front positions of the long chute within 15 %; half-segregation time within 20 % (both
+flux models).  Cases that fail are expected failures with the measured reason
+(``xfail(strict=True)``: they must keep failing, or the marker is removed).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from granflow.continuum import experiments as ex
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+CAMPAIGN = REPO / "results" / "default"
+OUT = REPO / "results" / "continuum"
+RUNS = CAMPAIGN / "chute" / "linear" / "lambda~1"
+#: (parent theta, H, child theta, t_end): up and down, thick (H = 10) and thin (H = 6, 8);
+#: child inclinations are not campaign grid points (the library never saw these steady states)
+SWITCHES = [(26.0, 10, 27.5, 400.0), (28.0, 10, 26.5, 400.0), (25.0, 6, 26.5, 300.0),
+            (25.0, 6, 24.5, 300.0), (24.0, 8, 25.5, 300.0), (25.0, 6, 23.5, 100.0)]
+LONG_TILES = [(25.0, 10)] * 2 + [(25.0, 6)] * 8
+
+
+def _name(th1, H, th2):
+    return f"H{H}_{th1:g}to{th2:g}"
+
+
+@pytest.fixture(scope="module")
+def comparison():
+    if not (CAMPAIGN / "closures.json").exists():
+        pytest.skip("needs the default campaign: snakemake --cores 2")
+    dirs = []
+    for th1, H, th2, t_end in SWITCHES:
+        d = OUT / "switch" / _name(th1, H, th2)
+        if not (d / "summary.json").exists():
+            ex.run_switch(RUNS / f"theta~{th1:g}" / f"H~{H}", th2, d, t_end=t_end)
+        dirs.append(d)
+    lc = OUT / "long_chute"
+    if not (lc / "columns.nc").exists():
+        first = ex._summary(RUNS / "theta~25" / "H~6")["params"]
+        ex.run_long_chute([RUNS / f"theta~{t:g}" / f"H~{H}" / "final_state.npz"
+                           for t, H in LONG_TILES],
+                          CAMPAIGN / "bases" / "lambda~1" / "box~10x5" / "base.npy",
+                          first["Lx"], first["Ly"], first, lc, t_end=24.0)
+    rows = ex.diffusivity_measurements(dirs)
+    fit = ex.diffusivity_fit(rows)
+    lib = OUT / "closures.nc"
+    ex.library_with_diffusivity(CAMPAIGN, fit, lib)
+    res = ex.compare_all(lib, CAMPAIGN, dirs, lc, OUT / "comparison.json", OUT / "figures")
+    res["diffusivity_runs"] = rows
+    return res
+
+
+def _switch(res, th1, H, th2):
+    name = _name(th1, H, th2)
+    return next(s for s in res["switches"] if s.get("child", "").endswith(name))
+
+
+KNOWN = json.loads((Path(__file__).with_name("continuum_known_failures.json")).read_text()) \
+    if Path(__file__).with_name("continuum_known_failures.json").exists() else {}
+
+
+def _maybe_xfail(key):
+    why = KNOWN.get(key)
+    return [pytest.mark.xfail(strict=True, reason=why)] if why else []
+
+
+@pytest.mark.parametrize("th1, H, th2", [pytest.param(a, b, c, marks=_maybe_xfail(
+    f"u:{_name(a, b, c)}")) for a, b, c, _ in SWITCHES])
+def test_switch_steady_velocity_within_5_percent(comparison, th1, H, th2):
+    s = _switch(comparison, th1, H, th2)
+    assert s["child_state"] == "steady", f"particle run ended {s['child_state']}"
+    assert abs(s["err_u_steady"]) <= ex.TOL_STEADY_U, s["err_u_steady"]
+
+
+@pytest.mark.parametrize("th1, H, th2", [pytest.param(a, b, c, marks=_maybe_xfail(
+    f"tau:{_name(a, b, c)}")) for a, b, c, _ in SWITCHES])
+def test_switch_efolding_time_within_25_percent(comparison, th1, H, th2):
+    s = _switch(comparison, th1, H, th2)
+    assert math.isfinite(s.get("tau", math.nan)), s.get("fit_error")
+    assert abs(s["err_tau"]) <= ex.TOL_TAU, s["err_tau"]
+
+
+@pytest.mark.parametrize("feature", [pytest.param(f, marks=_maybe_xfail(f"long:{f}"))
+                                     for f in ("peak", "front")])
+def test_long_chute_positions_within_15_percent(comparison, feature):
+    lc = comparison["long_chute"]
+    assert lc["worst_err_after_quarter"][feature] <= ex.TOL_POSITION
+
+
+@pytest.mark.parametrize("flux", ["symmetric", "asymmetric"])
+@pytest.mark.parametrize("sigma", [0.5, 0.6, 0.7, 0.8, 0.9])
+def test_segregation_half_time_within_20_percent(comparison, request, flux, sigma):
+    why = KNOWN.get(f"seg:{flux}:{sigma:g}")
+    if why:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=why))
+    s = next(r for r in comparison["segregation"] if abs(r.get("sigma", -1) - sigma) < 1e-9)
+    assert abs(s[flux]["err_t_half"]) <= ex.TOL_HALF_TIME, s[flux]["err_t_half"]
+
+
+def test_diffusivity_closure_is_stored_with_its_uncertainty(comparison):
+    from granflow.closures import open_library
+
+    lib = open_library(OUT / "closures.nc")
+    assert "diffusivity_c_D" in lib
+    rows = comparison["diffusivity_runs"]
+    assert len(rows) >= 3
+    D = lib.closures.diffusivity(rows[0]["u_bar"], rows[0]["h"], uncertainty=True,
+                                 allow_unidentified=True)
+    assert float(D["std"]) > 0
+    # each run's D within 3 combined standard errors of the closure (held-out style check)
+    for r in rows:
+        pred = float(lib.closures.diffusivity(r["u_bar"], r["h"], allow_unidentified=True))
+        assert abs(pred - r["D"]) <= 3 * math.hypot(r["D_stderr"], float(D["std"]))
+
+
+def test_package_example_runs_on_the_comparison_library(comparison):
+    """The example of the granflow.continuum docstring, as written, on results/continuum."""
+    import os
+
+    import numpy as np
+
+    import granflow.continuum as C
+
+    code = C.__doc__.split("Example: open a library and run each model ::")[1]
+    code = "\n".join(line[4:] for line in code.splitlines())
+    ns = {}
+    cwd = os.getcwd()
+    os.chdir(REPO)
+    try:
+        exec(code, ns)
+    finally:
+        os.chdir(cwd)
+    assert float(abs(ns["res"].mass[-1] / ns["res"].mass[0] - 1)) < 1e-12
+    lib = ns["lib"]
+    c_D = float(lib["diffusivity_c_D"].squeeze())
+    assert ns["D"] == pytest.approx(c_D * 0.75 / 7.9 * 1.5 ** 2, rel=1e-12)
+    assert ns["Ps_status"] in ("ok", "reduced")
+    assert np.isfinite(float(ns["seg"].t_half))
