@@ -177,7 +177,9 @@ def run_params(config: dict, p: RunPoint) -> dict:
     """Complete ``granflow simulate`` parameters of run ``p`` (validated by the job itself).
 
     Layering: species, then ``numerics``, then the campaign's own ``numerics`` overrides, then
-    the box, base thickness and the grid values of the point.
+    the box, base thickness and the grid values of the point; a campaign with
+    ``engine: lammps`` adds ``engine`` (the run is then carried out by LAMMPS,
+    :mod:`granflow.lammps`).
     """
     species = config.get("species") or {}
     numerics = dict(config.get("numerics") or {})
@@ -190,6 +192,8 @@ def run_params(config: dict, p: RunPoint) -> dict:
                   base_layers=base_settings(config)["layers"])
     if p.kind == "segregation":
         params.update(sigma=p.sigma, phi0=float(c.get("phi0", 0.5)))
+    if c.get("engine", "numba") != "numba":  # absent for numba: older run parameters unchanged
+        params["engine"] = str(c["engine"])
     return {k: (float(v) if isinstance(v, int) and not isinstance(v, bool) and k != "seed"
                 and k != "cg_every" else v) for k, v in params.items()}
 

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["DumpFormatError", "DumpReader", "DumpSnapshot", "dump_kind", "first_timestep",
-           "order_dump_files"]
+           "order_dump_files", "write_dump_snapshot"]
 
 #: Header items with one value line (name -> parser).
 _ONE_LINE = {"TIMESTEP": int, "TIME": float, "UNITS": str}
@@ -294,3 +294,28 @@ def order_dump_files(paths) -> dict:
         p = Path(p)
         groups[dump_kind(p)].append((first_timestep(p), p.name, p))
     return {k: [p for _, _, p in sorted(v)] for k, v in groups.items()}
+
+
+# ---------------------------------------------------------------------- writing
+def write_dump_snapshot(fh, kind: str, timestep: int, columns, data, box, time=None,
+                        boundary="pp pp mm", fmt="%.10g"):
+    """Append one snapshot in LAMMPS text-dump layout to the open text file ``fh``.
+
+    For tests, benchmarks and converting other codes' snapshots to what ``granflow ingest
+    lammps`` reads; ``kind`` is "atoms" (``ITEM: ATOMS``) or "local" (``ITEM: ENTRIES``).
+    """
+    if kind not in ("atoms", "local"):
+        raise ValueError(f"kind = {kind!r}: allowed 'atoms', 'local'")
+    data = np.asarray(data, dtype=np.float64).reshape(-1, len(columns))
+    box = np.asarray(box, dtype=np.float64).reshape(3, 2)
+    what = "ATOMS" if kind == "atoms" else "ENTRIES"
+    head = ""
+    if time is not None:
+        head += f"ITEM: TIME\n{float(time):.16g}\n"
+    head += (f"ITEM: TIMESTEP\n{int(timestep)}\nITEM: NUMBER OF {what}\n{len(data)}\n"
+             f"ITEM: BOX BOUNDS {boundary}\n"
+             + "".join(f"{lo:.16e} {hi:.16e}\n" for lo, hi in box)
+             + f"ITEM: {what} {' '.join(columns)}\n")
+    fh.write(head)
+    if len(data):
+        np.savetxt(fh, data, fmt=fmt)

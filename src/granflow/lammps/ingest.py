@@ -107,13 +107,14 @@ def _detect_base_types(first, second) -> list[int]:
 
 def ingest_lammps(dumps, out_dir, theta: float, *, base_types=None, dt=None, gravity=1.0,
                   kn=None, t_c=None, e=None, kt_over_kn=2.0 / 7.0, gt_over_gn=1.0, mu_c=0.5,
-                  pair_columns=PAIR_COLUMNS, t_start=None, **analysis) -> dict:
+                  pair_columns=PAIR_COLUMNS, t_start=None, z_origin=None, **analysis) -> dict:
     """Ingest a user's LAMMPS chute run (see the module docstring); returns the summary.
 
     ``kn`` (normal stiffness in the dump's units, every pair) or ``t_c`` and ``e`` (the flow
     species in granflow units, as ``granflow simulate``) give the elastic energy of the
     flow-state classifier (E_kin / E_ela).  ``analysis`` overrides :data:`INGEST_DEFAULTS`.
-    ``t_start`` skips snapshots before that (granflow) time.
+    ``t_start`` skips snapshots before that (granflow) time.  ``z_origin`` (dump units) is
+    the height that becomes z = 0 (default: the highest base-particle centre).
     """
     from ..simulate import build_observers, startup_time, write_outputs
     from ..engine.run import EnergySeries
@@ -190,7 +191,7 @@ def ingest_lammps(dumps, out_dir, theta: float, *, base_types=None, dt=None, gra
         z = first.column(pos_col)
     else:
         z = box[2, 0] + first.column("zs") * (box[2, 1] - box[2, 0])
-    z_shift = float(z[~flow].max()) / length
+    z_shift = (float(z[~flow].max()) if z_origin is None else float(z_origin)) / length
     lam = float(np.median(diam[~flow])) / length
     d_flow = diam[flow] / length
     H = float(np.sum(d_flow**3)) / (Lx * Ly)

@@ -122,8 +122,8 @@ def write_input(path, *, tables: PairTables, gravity, dt: float, n_steps: int,
         f"timestep        {_g(dt)}",
         "fix             frz base freeze",
         # fix gravity normalises the vector; its magnitude is the first argument
-        f"fix             grav flow gravity {_g(gnorm)} vector {_g(g[0] / gnorm)} "
-        f"{_g(g[1] / gnorm)} {_g(g[2] / gnorm)}",
+        f"fix             grav flow gravity {_g(gnorm)} vector {_g(g[0])} {_g(g[1])} "
+        f"{_g(g[2])}",
         "fix             integ flow nve/sphere",
         "compute         gfpair all pair/local dist dx dy dz fx fy fz p1 p2 p3 cutoff radius",
         "compute         gfid all property/local patom1 patom2 cutoff radius",
