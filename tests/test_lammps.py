@@ -488,3 +488,57 @@ def test_lammps_engine_run_writes_the_numba_outputs(tmp_path):
     np.testing.assert_allclose(sb.e_kin.values[falling], sa.e_kin.values[falling], rtol=1e-6)
     np.testing.assert_allclose(sb.e_grav.values[falling], sa.e_grav.values[falling], rtol=1e-9)
     assert r_lmp["n_flow"] == r_num["n_flow"] == 72
+
+
+# ------------------------------------------------------------------ campaign switch
+def _tiny(engine=None):
+    import copy
+
+    from granflow.campaign.config import load_yaml
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    cfg = load_yaml(repo / "config" / "config.yaml")
+    tiny = load_yaml(repo / "config" / ("test-tiny-lammps.yaml" if engine else "test-tiny.yaml"))
+    out = copy.deepcopy(cfg)
+    for k, v in tiny.items():  # Snakemake's merge: mappings merged one level down
+        out[k] = dict(out.get(k) or {}, **v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def test_campaign_engine_switch_reaches_every_run_of_its_block():
+    from granflow.campaign import grid as G
+    from granflow.campaign.reductions import config_differences
+    from granflow.simulate import validate_params
+
+    numba_cfg, lammps_cfg = _tiny(), _tiny("lammps")
+    runs = G.expand_runs(lammps_cfg)
+    assert runs == G.expand_runs(numba_cfg)  # the same grid, the same run directories
+    for r in runs:
+        a, b = G.run_params(numba_cfg, r), G.run_params(lammps_cfg, r)
+        assert "engine" not in a  # numba runs: parameters (and their hash) unchanged
+        assert b == dict(a, engine="lammps")
+        assert validate_params(b)["engine"] == "lammps"
+    text = "; ".join(config_differences(lammps_cfg))
+    assert "chute runs carried out by LAMMPS" in text and "segregation runs carried out" in text
+    assert "LAMMPS" not in "; ".join(config_differences(numba_cfg))
+
+
+def test_check_config_refuses_what_lammps_cannot_run():
+    from granflow.campaign.config import check_config, default_schema_path, load_yaml
+
+    schema = load_yaml(default_schema_path())
+    cfg = _tiny("lammps")
+    cfg["campaigns"]["chute"]["contact_law"] = ["linear", "plastic"]
+    cfg["campaigns"]["chute"]["lambda"] = [0.0, 1.0]
+    cfg["campaigns"]["chute"]["Lx"] = 6.0
+    with pytest.raises(ValueError) as err:
+        check_config(cfg, schema)
+    msg = str(err.value)
+    assert "campaigns.chute.engine = 'lammps' with contact_law ['plastic']" in msg
+    assert "campaigns.chute.engine = 'lammps' with lambda = 0 (flat wall)" in msg
+    cfg = _tiny("lammps")
+    cfg["campaigns"]["chute"]["engine"] = "gromacs"
+    with pytest.raises(ValueError, match=r"campaigns.chute.engine = 'gromacs': must be one of "
+                                         r"\['numba', 'lammps'\]"):
+        check_config(cfg, schema)

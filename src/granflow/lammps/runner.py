@@ -190,20 +190,38 @@ class LammpsChute(SnapshotSystem):
         self.max_overlap_seen = 0.0
 
     # ---------------------------------------------------------------- process
-    def start(self):
-        """Write the input, start LAMMPS and read the t = 0 snapshot."""
-        exe, mpirun, env = find_lammps()
+    def write_inputs(self, atoms_dump="atoms.pipe", pairs_dump="pairs.pipe"):
+        """Write chute.data and in.granflow into the run folder (dumps to the given names)."""
         self.folder.mkdir(parents=True, exist_ok=True)
         s = self.initial
         write_data(self.folder / "chute.data", s.pos, 2.0 * s.radius, s.mass, s.ptype, s.Lx, s.Ly,
                    title=f"granflow chute theta={self.cfg.theta:g} H={self.cfg.H:g} "
                          f"lambda={self.cfg.lam:g}")
-        write_input(self.folder / "in.granflow", tables=self.tables, gravity=s.gvec, dt=s.dt,
-                    n_steps=self.n_steps, sample_every=self.sample_every, skin=s.skin,
-                    n_types=len(s.interactions.type_names), atoms_dump="atoms.pipe",
-                    pairs_dump="pairs.pipe",
-                    title=f"granflow chute run theta={self.cfg.theta:g} H={self.cfg.H:g} "
-                          f"lambda={self.cfg.lam:g} ({self.n_steps} steps)")
+        return write_input(self.folder / "in.granflow", tables=self.tables, gravity=s.gvec,
+                           dt=s.dt, n_steps=self.n_steps, sample_every=self.sample_every,
+                           skin=s.skin, n_types=len(s.interactions.type_names),
+                           atoms_dump=atoms_dump, pairs_dump=pairs_dump,
+                           title=f"granflow chute run theta={self.cfg.theta:g} H={self.cfg.H:g} "
+                                 f"lambda={self.cfg.lam:g} ({self.n_steps} steps)")
+
+    def run_to_files(self, atoms_dump="atoms.dump", pairs_dump="pairs.dump"):
+        """Write the input with dumps to files and run LAMMPS to the end (no streaming): the
+        files are what ``granflow ingest lammps`` reads.  Returns the LAMMPS wall time."""
+        exe, mpirun, env = find_lammps()
+        self.write_inputs(atoms_dump, pairs_dump)
+        t0 = _time.monotonic()
+        with open(self.folder / "lammps.out", "wb") as out:
+            rc = subprocess.run(lammps_command(exe, mpirun, self.ranks), cwd=self.folder,
+                                env=env, stdout=out, stderr=subprocess.STDOUT).returncode
+        if rc != 0:
+            raise SimulationError(f"LAMMPS run in {self.folder} failed (exit code {rc}):\n"
+                                  f"{_log_tail(self.folder)}")
+        return _time.monotonic() - t0
+
+    def start(self):
+        """Write the input, start LAMMPS and read the t = 0 snapshot."""
+        exe, mpirun, env = find_lammps()
+        self.write_inputs("atoms.pipe", "pairs.pipe")
         self._pipes = [_Pipe(self.folder / "atoms.pipe"), _Pipe(self.folder / "pairs.pipe")]
         cmd = lammps_command(exe, mpirun, self.ranks)
         log.info("LAMMPS: %s (in %s)", " ".join(cmd), self.folder)
