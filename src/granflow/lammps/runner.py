@@ -246,6 +246,11 @@ class LammpsChute(SnapshotSystem):
 
     def close(self):
         """Stop LAMMPS (if still running) and remove the pipes."""
+        if self.proc is not None and self.proc.poll() is None and self.step_count >= self.n_steps:
+            try:  # the last snapshot is read: let LAMMPS finish its run and log normally
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                pass
         if self.proc is not None and self.proc.poll() is None:
             self.proc.terminate()
             try:
