@@ -62,6 +62,8 @@ PARAMETERS = {
     "sample_interval": "time between samples (default t_c/2)",
     "checkpoint_every_s": "wall-clock seconds between checkpoints",
     "early_stop": "stop when arrested / accelerating / steady long enough (default true)",
+    "stop_when_flowing": "stop as soon as the run is decisively not arresting, flow state "
+                         "'flowing' (hstop brackets; default false)",
     "averaging_time": "averaging time after the steady onset, > 0 (paper 100)",
     "check_every": "time between steady-state checks, > 0",
     "min_accelerating_time": "earliest time an accelerating stop is allowed (default t_end/4)",
@@ -94,7 +96,8 @@ def validate_params(params: dict) -> dict:
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
              averaging_time=100.0, check_every=10.0, min_accelerating_time=None, cg_width=0.25,
-             cg_dz=0.05, cg_window=10.0, cg_every=1, cg_base_line="contact_then_down")
+             cg_dz=0.05, cg_window=10.0, cg_every=1, cg_base_line="contact_then_down",
+             stop_when_flowing=False)
     p.update(params)
     for key in ("base_t_c", "base_e", "base_mu_c"):
         p.setdefault(key, None)
@@ -120,6 +123,8 @@ def validate_params(params: dict) -> dict:
     if p["cg_base_line"] not in BASE_LINES:
         raise ValueError(f"cg_base_line = {p['cg_base_line']!r} is unknown: allowed "
                          f"{sorted(BASE_LINES)}")
+    if not isinstance(p["stop_when_flowing"], bool):
+        raise ValueError(f"stop_when_flowing = {p['stop_when_flowing']!r} must be true or false")
     if "engine" in p:
         if p["engine"] not in ENGINES:
             raise ValueError(f"engine = {p['engine']!r} is unknown: allowed {list(ENGINES)}")
@@ -241,7 +246,7 @@ def build_observers(p: dict, n_species: int, d_max: float, series, min_onset: fl
                                  averaging_time=p["averaging_time"],
                                  check_every=p["check_every"],
                                  min_accelerating_time=p["min_accelerating_time"],
-                                 min_onset=min_onset)
+                                 min_onset=min_onset, stop_when_flowing=p["stop_when_flowing"])
     return profile_obs, MonitorObserver(monitor, series)
 
 

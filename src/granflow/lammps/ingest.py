@@ -230,7 +230,7 @@ def ingest_lammps(dumps, out_dir, theta: float, *, base_types=None, dt=None, gra
     p = dict(INGEST_DEFAULTS)
     p.update(analysis)
     p.update(theta=float(theta), H=H, lam=lam, Lx=Lx, Ly=Ly, engine="lammps-ingest",
-             t_end=math.inf)
+             t_end=math.inf, stop_when_flowing=False)  # an ingest never stops a run
     system = SnapshotSystem(Lx, Ly, gvec, ptype_of_type, base_ptype, tables,
                             dt=dt_g if not has_time else math.nan, time_from_step=not has_time,
                             length=length, mass_unit=mass_unit, g=gravity, z_shift=z_shift,
