@@ -125,7 +125,7 @@ MEMORY_PROBE = r"""
 import json, resource, sys, tracemalloc
 from granflow.lammps.ingest import ingest_lammps
 import granflow.simulate, granflow.observers  # imports outside the measured window
-files, out = json.loads(sys.argv[1]), sys.argv[2]
+files, out = json.load(open(sys.argv[1])), sys.argv[2]  # the list: too long for argv
 base_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 tracemalloc.start()
 s = ingest_lammps(files, out, 24.0, t_c=0.02, e=0.88, averaging_time=5.0, check_every=1.0,
@@ -151,7 +151,9 @@ def test_ingest_memory_is_flat_in_the_number_of_snapshots(base10x5, tmp_path):
     for label, step in (("1x", 8), ("8x", 1)):
         chosen = [os.fspath(p) for p in atoms[::step] + pairs[::step]]
         nbytes = sum(os.path.getsize(p) for p in chosen)
-        proc = subprocess.run([sys.executable, "-c", MEMORY_PROBE, json.dumps(chosen),
+        listing = tmp_path / f"files{label}.json"
+        listing.write_text(json.dumps(chosen))
+        proc = subprocess.run([sys.executable, "-c", MEMORY_PROBE, os.fspath(listing),
                                os.fspath(tmp_path / f"out{label}")], capture_output=True,
                               text=True, timeout=3000)
         assert proc.returncode == 0, proc.stderr[-3000:]
