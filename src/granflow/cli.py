@@ -6,6 +6,8 @@ simulate      run one chute from a parameter file (YAML) into an output folder (
               --from STATE restarts a saved final_state.npz at a new inclination)
 prepare-base  prepare and freeze a rough base for one lambda (reused by every run over it)
 demo          a short chute demonstration run (engine smoke demo for the quick start)
+ingest        ingest lammps DUMPS... --out DIR: series.nc, profiles.nc, summary.json of a
+              user's own LAMMPS chute run (coarse-grained and classified as granflow's runs)
 campaign      the campaign workflow's steps (check-config, expand, run-params, row, collect,
               fit, library, report, hstop-step; Snakemake calls them, `granflow campaign -h`)
 
@@ -107,6 +109,28 @@ def cmd_demo(args):
     print(f"outputs in {args.out}/ (series.nc, final_state.npz)")
 
 
+def cmd_ingest_lammps(args):
+    from .lammps.ingest import ingest_lammps
+
+    analysis = {k: getattr(args, k) for k in ("averaging_time", "check_every",
+                                               "min_accelerating_time", "cg_width", "cg_dz",
+                                               "cg_window", "cg_every", "cg_base_line")
+                if getattr(args, k) is not None}
+    kwargs = {}
+    if args.pair_columns:
+        kwargs["pair_columns"] = tuple(args.pair_columns.split(","))
+    summary = ingest_lammps(args.dumps, args.out, args.theta, base_types=args.base_types,
+                            dt=args.dt, gravity=args.gravity, kn=args.kn, t_c=args.t_c, e=args.e,
+                            kt_over_kn=args.kt_over_kn, t_start=args.t_start,
+                            z_origin=args.z_origin, **kwargs,
+                            **analysis)
+    da = summary.get("depth_averages") or {}
+    print(f"{args.out}: {summary['flow_state']} ({summary['n_flow']} flow particles, "
+          f"t in [{da.get('t_from', summary['profile_time_from']):.4g}, {summary['t_final']:.4g}]"
+          f" averaged): u_bar = {da.get('u_bar', float('nan')):.4g}, "
+          f"F = {da.get('froude', float('nan')):.4g}, h = {da.get('flow_height', float('nan')):.4g}")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="granflow", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -139,6 +163,44 @@ def main(argv=None):
     p.add_argument("--t-end", type=float, default=20.0)
     p.add_argument("--threads", type=int, default=1)
     p.set_defaults(func=cmd_demo)
+    p = sub.add_parser("ingest", help="bring another code's chute run into granflow")
+    isub = p.add_subparsers(dest="source", required=True)
+    p = isub.add_parser(
+        "lammps", help="a LAMMPS chute run: per-atom and pair dumps -> series.nc, profiles.nc, "
+                       "summary.json (see granflow.lammps.ingest for the dump commands)")
+    p.add_argument("dumps", nargs="+", help="per-atom dump file(s) and pair (dump local) file(s), "
+                                           "any order; .gz allowed")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--theta", type=float, required=True, help="inclination in degrees (gravity "
+                   "(sin theta, 0, -cos theta), x downslope)")
+    p.add_argument("--base-types", type=int, nargs="+", default=None,
+                   help="atom types of the frozen base (default: types that do not move)")
+    p.add_argument("--dt", type=float, default=None, help="time step (dump units) when the dumps "
+                   "have no ITEM: TIME")
+    p.add_argument("--gravity", type=float, default=1.0, help="|g| of the run (dump units)")
+    p.add_argument("--kn", type=float, default=None, help="normal contact stiffness of every "
+                   "pair (dump units), for the elastic energy E_ela")
+    p.add_argument("--t-c", type=float, default=None, help="or: the flow species' collision "
+                   "time (granflow units) ...")
+    p.add_argument("--e", type=float, default=None, help="... and restitution (default 0.88)")
+    p.add_argument("--kt-over-kn", type=float, default=2.0 / 7.0)
+    p.add_argument("--pair-columns", default=None, help="comma-separated names of the pair "
+                   "dump's columns (default id1,id2,dist,dx,dy,dz,fx,fy,fz,ftx,fty,ftz)")
+    p.add_argument("--t-start", type=float, default=None, help="ignore snapshots before this "
+                   "time (granflow units)")
+    p.add_argument("--z-origin", type=float, default=None, help="height (dump units) that "
+                   "becomes z = 0 (default: the highest base-particle centre)")
+    for name, kind, what in (("averaging-time", float, "averaging time after the steady onset "
+                                                       "(default 100)"),
+                             ("check-every", float, "time between steady-state checks (10)"),
+                             ("min-accelerating-time", float, "earliest accelerating verdict"),
+                             ("cg-width", float, "coarse-graining width (0.25)"),
+                             ("cg-dz", float, "z spacing of the profiles (0.05)"),
+                             ("cg-window", float, "time window of the spreads (10)"),
+                             ("cg-every", int, "coarse-grain every n-th snapshot (1)"),
+                             ("cg-base-line", str, "flow-base stress path (contact_then_down)")):
+        p.add_argument(f"--{name}", type=kind, default=None, help=what)
+    p.set_defaults(func=cmd_ingest_lammps)
     from .campaign.commands import register as _register_campaign
     _register_campaign(sub)
 

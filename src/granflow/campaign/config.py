@@ -5,7 +5,7 @@
 ``snakemake.utils.validate`` on it) and adds the cross-field checks a schema cannot express
 (box at least 3 lambda wide, hstop search bounds ordered, averaging time and segregation
 profile window within t_end, at least three size ratios for the Ps(sigma) law, at least one
-run).  Every error reads
+run, ``engine: lammps`` only with the laws and bases LAMMPS runs and LAMMPS installed).  Every error reads
 like ``config key campaigns.chute.grids[0].theta[1] = 95: must be < 90; allowed: inclination
 theta in degrees, in (0, 90)``.
 """
@@ -101,6 +101,8 @@ def semantic_errors(config: dict) -> list[str]:
         if kind == "segregation" and any(k not in c for k in ("theta", "H")):
             out.append("config keys campaigns.segregation.theta and .H are required when the "
                        "segregation campaign is enabled")
+        if c.get("engine") == "lammps":
+            out += _lammps_errors(kind, c, lams)
         if kind == "chute":
             s = c.get("hstop_search") or {}
             if s.get("enabled") and s.get("theta_min", 5.0) >= s.get("theta_max", 40.0):
@@ -111,6 +113,30 @@ def semantic_errors(config: dict) -> list[str]:
         (campaign_cfg(config, "chute").get("hstop_search") or {}).get("enabled"))
     if not out and not expand_runs(config) and not search_on:
         out.append("the configuration defines no runs: enable a campaign with a non-empty grid")
+    return out
+
+
+def _lammps_errors(kind: str, c: dict, lams) -> list[str]:
+    """``engine: lammps``: the laws and bases LAMMPS can run, and LAMMPS installed."""
+    from ..lammps.runner import LammpsNotFound, find_lammps
+    from ..lammps.species import SUPPORTED_LAWS
+
+    out = []
+    laws = list(c.get("contact_law") or ["linear"])
+    for block in (c.get("grids") or []) + (c.get("points") or []):
+        laws += list(block.get("contact_law") or [])
+    bad = sorted({str(x) for x in laws} - set(SUPPORTED_LAWS))
+    if bad:
+        out.append(f"config key campaigns.{kind}.engine = 'lammps' with contact_law {bad}: "
+                   f"allowed with LAMMPS: {list(SUPPORTED_LAWS)} (no Walton-Braun plastic law "
+                   "in LAMMPS pair_style granular)")
+    if any(float(x) == 0 for x in lams):
+        out.append(f"config key campaigns.{kind}.engine = 'lammps' with lambda = 0 (flat "
+                   "wall): allowed with LAMMPS: lambda in (0, 10] (a rough base)")
+    try:
+        find_lammps()
+    except LammpsNotFound as exc:
+        out.append(f"config key campaigns.{kind}.engine = 'lammps': {exc}")
     return out
 
 

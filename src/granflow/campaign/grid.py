@@ -211,7 +211,9 @@ def run_params(config: dict, p: RunPoint) -> dict:
 
     Layering: species, then ``numerics``, then the campaign's own ``numerics`` overrides, then
     the box, base thickness and the grid values of the point; a ``bracket`` run (hstop
-    bisection) is a chute run that stops as soon as it is decisively flowing.
+    bisection) is a chute run that stops as soon as it is decisively flowing; a campaign with
+    ``engine: lammps`` adds ``engine`` (the run is then carried out by LAMMPS,
+    :mod:`granflow.lammps`).
     """
     species = config.get("species") or {}
     numerics = dict(config.get("numerics") or {})
@@ -228,6 +230,8 @@ def run_params(config: dict, p: RunPoint) -> dict:
         params.update(stop_when_flowing=True, early_stop=True)
     if p.replicate:  # replicate k: the insertion seed + k (the base is shared)
         params["seed"] = int(params.get("seed", 1)) + int(p.replicate)
+    if c.get("engine", "numba") != "numba":  # absent for numba: older run parameters unchanged
+        params["engine"] = str(c["engine"])
     return {k: (float(v) if isinstance(v, int) and not isinstance(v, bool) and k != "seed"
                 and k != "cg_every" else v) for k, v in params.items()}
 

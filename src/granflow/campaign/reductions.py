@@ -63,6 +63,11 @@ def config_differences(config: dict) -> list[str]:
     if "layers" in base and not _same(base["layers"], PAPER["base_layers"]):
         out.append(f"base settled from {_fmt(base['layers'])} layers (paper 12)")
     camps = config.get("campaigns", {}) or {}
+    for kind in ("chute", "segregation"):
+        c = camps.get(kind, {}) or {}
+        if c.get("enabled", False) and c.get("engine", "numba") == "lammps":
+            out.append(f"{kind} runs carried out by LAMMPS (pair_style granular, same particles "
+                       "and species; the paper used MercuryDPM)")
     chute = camps.get("chute", {}) or {}
     if chute.get("enabled", False):
         cn = dict(nu, **(chute.get("numerics") or {}))

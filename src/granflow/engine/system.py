@@ -155,6 +155,8 @@ class ParticleSystem:
     def _index_pairs(self, saved: dict | None = None):
         """Per-pair arrays derived from the pair list (pull index, reduced masses, spring flags)
         and those the pair pass writes (``saved``: restored from a checkpoint)."""
+        if not hasattr(self, "_inv_mass"):  # a system never stepped (e.g. run by LAMMPS)
+            self._cache_inverse()
         arrays = dict(zip(K.PAIR_ARRAYS, K.pair_index(self.pi, self.pj, self.hist_t,
                                                       self._inv_mass, self.n)))
         for name, value in (saved or {}).items():
