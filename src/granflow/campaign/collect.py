@@ -173,33 +173,54 @@ def verify_run_outputs(run_dir, remove_corrupt: bool = False) -> dict:
     """Read back a finished run's outputs before using them; return its summary.
 
     ``summary.json`` must parse; ``series.nc``, ``profiles.nc`` and ``final_state.npz`` must
-    have the size and SHA-256 the run recorded in it (``outputs``; runs written before that
-    record are only read back) and open.  Anything else raises
-    :class:`granflow.simulate.CorruptFileError` (a ValueError) naming the file and what is
-    wrong; with ``remove_corrupt`` that file is deleted first, so that the workflow's rerun
-    recomputes this run (and only this run: the file is an output of its simulation job).
+    exist, have the size and SHA-256 the run recorded in it (``outputs``; runs written before
+    that record are only read back) and open.  Anything else raises
+    :class:`granflow.simulate.CorruptFileError` (a ValueError; FileNotFoundError for a missing
+    output) naming the file and what is wrong.  With ``remove_corrupt`` the bad file and the
+    run's ``summary.json`` (which no longer describes what is on disk) are deleted first: the
+    summary is an input of the workflow's row rule, so the rerun recomputes this run -- and
+    only this run, whose simulation job writes them.
     """
+    from ..simulate import CorruptFileError
+
+    run_dir = Path(run_dir)
+    summ = _read_summary(run_dir / "summary.json", remove_corrupt)
+    try:
+        _check_outputs(run_dir, summ, remove_corrupt)
+    except (CorruptFileError, FileNotFoundError) as exc:
+        if not remove_corrupt:
+            raise
+        try:
+            (run_dir / "summary.json").unlink()
+        except OSError:
+            raise exc from None
+        msg = str(exc).replace("; removed it:", "; removed it and the run's summary.json:")
+        if "removed it" not in msg:
+            msg += "; removed the run's summary.json: rerun the workflow to recompute this run"
+        if isinstance(exc, CorruptFileError):
+            raise CorruptFileError(exc.path, msg, True) from None
+        raise FileNotFoundError(msg) from None
+    return summ
+
+
+def _check_outputs(run_dir: Path, summ: dict, remove_corrupt: bool):
     import xarray as xr
 
     from ..simulate import RUN_OUTPUTS, _corrupt, file_record, load_state
 
-    run_dir = Path(run_dir)
-    summ = _read_summary(run_dir / "summary.json", remove_corrupt)
     recorded = summ.get("outputs") or {}
     kinds = {"series.nc": "time-series", "profiles.nc": "profiles", "final_state.npz": "state"}
     for name in RUN_OUTPUTS:
         path = run_dir / name
         kind = kinds.get(name, name)
         if not path.is_file():
-            raise FileNotFoundError(f"{name} of run {str(run_dir)!r} is missing: rerun the "
-                                    "workflow to recompute this run")
+            raise FileNotFoundError(f"{kind} file {str(path)!r} of a finished run is missing")
         want = recorded.get(name)
         if isinstance(want, dict) and "bytes" in want:
             have = file_record(path)
             if have["bytes"] != want["bytes"]:
                 raise _corrupt(path, f"is {have['bytes']} bytes, the run wrote {want['bytes']} "
-                                     "(truncated or replaced)", kind,
-                               remove_corrupt)
+                                     "(truncated or replaced)", kind, remove_corrupt)
             if have["sha256"] != want.get("sha256"):
                 raise _corrupt(path, "does not hold what the run wrote (its SHA-256 differs "
                                      "from the one in summary.json): modified or corrupted",
@@ -214,7 +235,6 @@ def verify_run_outputs(run_dir, remove_corrupt: bool = False) -> dict:
                                remove_corrupt) from None
         else:
             load_state(path, kind="state", remove_if_corrupt=remove_corrupt)
-    return summ
 
 
 def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.0,
