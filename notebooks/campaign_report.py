@@ -64,7 +64,8 @@ from granflow.campaign.collect import read_excluded
 excluded = read_excluded(R / "excluded_runs.csv")
 STATE_STYLE = {"arrested": ("s", "tab:blue"), "steady": ("o", "tab:green"),
                "accelerating": ("^", "tab:red"), "layered": ("D", "tab:purple"),
-               "oscillating": ("v", "tab:orange"), "undecided": ("x", "0.3")}
+               "oscillating": ("v", "tab:orange"), "undecided": ("x", "0.3"),
+               "flowing": (">", "tab:olive")}
 OK_STATES = ("ok", "reduced")
 
 
@@ -127,7 +128,8 @@ def fmt(r, p):
             f"[{r.param_status.get(p, '')}]")
 
 
-chute = table[table["kind"] == "chute"] if "kind" in table else table[table["sigma"] == 1]
+chute = (table[table["kind"].isin(["chute", "bracket"])] if "kind" in table
+         else table[table["sigma"] == 1])
 seg = table[table["kind"] == "segregation"] if "kind" in table else table[table["sigma"] < 1]
 laws = sorted(set(table["contact_law"]))
 lams = sorted(set(chute["lam"].astype(float)))
@@ -564,6 +566,31 @@ else:
     savefig(fig, "heldout_z")
 
 # %% [markdown]
+# ## Replicates: scatter between seeds against the runs' own uncertainty
+# Runs of one point with different insertion seeds (`replicates`) scatter by more than one
+# run's time windows show, most of all near hstop and in small boxes.  tau is the between-seed
+# standard deviation beyond the runs' decorrelated standard errors (pooled over the replicate
+# groups); the fits weight each run by sqrt(stderr^2 + tau^2) and split every parameter's
+# variance into the two parts (closure table: `between_seed_fraction`).  In the plots above,
+# replicates are the points that share an inclination and height.
+
+# %%
+from granflow.fitting.campaign import between_seed_scatter
+
+rep_rows = []
+for col in ("F", "rho_c", "K", "alpha", "h", "Ps"):
+    sub = table[(table["state"] == "steady")]
+    tau, n_groups, within = between_seed_scatter(sub, col)
+    rep_rows.append({"quantity": col, "replicate groups": n_groups,
+                     "between-seed std tau": tau,
+                     "within-run stderr (pooled)": math.sqrt(within) if n_groups else math.nan,
+                     "ratio": tau / math.sqrt(within) if n_groups and within > 0 else math.nan})
+display(pd.DataFrame(rep_rows) if any(r["replicate groups"] for r in rep_rows)
+        else Markdown("No replicates in this campaign (`replicates: 1`): the stated "
+                      "uncertainties are within-run only and do not include the scatter "
+                      "between seeds."))
+
+# %% [markdown]
 # ## Closure table
 # Every fitted parameter of the library with its standard error (bootstrap for hstop and the
 # closures that depend on it, weighted least-squares covariance otherwise), its status, the
@@ -573,24 +600,25 @@ else:
 # campaign's reductions (above) shift them.
 
 # %%
-PAPER = {("hstop", 1.0, "delta1"): 17.708, ("hstop", 1.0, "delta2"): 32.780,
-         ("hstop", 1.0, "A"): 3.355, ("flow_rule", 1.0, "beta"): 0.196,
-         ("flow_rule", 1.0, "gamma"): 0.040, ("alpha", 1.0, "d_lambda"): 6.678,
-         ("density", None, "c0"): 0.5985, ("density", None, "c1"): 4.8,
-         ("density", None, "c2"): 40.85, ("stress_ratio", None, "d0"): 132.0,
-         ("stress_ratio", None, "d1"): 21.5, ("Ps_law", None, "Pmax"): 7.35,
-         ("Ps_law", None, "k"): 5.21}
+from granflow.reference import compare_with_paper, paper_value as _paper_value
+
 ct = closure_rows(fits)
 ct = ct[ct["kind"] != "segregation"].copy()
 
 
 def paper_value(r):
     lam = None if not np.isfinite(r["lambda"]) else float(r["lambda"])
-    return PAPER.get((r["kind"], lam, r["parameter"]), math.nan)
+    return _paper_value(r["kind"], r["parameter"], lam)
 
 
 ct["paper"] = ct.apply(paper_value, axis=1)
 with pd.option_context("display.max_rows", 200, "display.max_colwidth", 60):
     display(ct[["kind", "contact_law", "lambda", "parameter", "value", "stderr",
                 "parameter_status", "status", "form", "paper", "fit_error", "n_points",
-                "heldout_max_abs_z"]])
+                "heldout_max_abs_z", "between_seed_fraction"]])
+cmp_paper = pd.DataFrame(compare_with_paper(fits))
+if len(cmp_paper):
+    display(Markdown("**Against the paper** (agrees: within 2 of its own stderr, or within 5 % "
+                     "where that is looser; meaningful only at the paper's species and "
+                     "protocol -- see the reductions above):"))
+    display(cmp_paper)

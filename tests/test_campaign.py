@@ -387,3 +387,31 @@ def test_report_renders_markdown_code_and_png(tmp_path):
     assert "data:image/png;base64," in html
     assert "X is 7" in html          # the injected parameter overrides the default
     assert (tmp_path / "r.ipynb").exists()
+
+
+@pytest.mark.parametrize("name", ["reference-lambda1.yaml", "reference-lambda-half.yaml",
+                                  "reference-segregation.yaml"])
+def test_reference_configurations_are_the_papers_setups(name):
+    """The paper-fidelity references run the paper's species (t_c 0.005, e 0.88, mu_c 0.5,
+    k_t = 2/7 k_n, gamma_t = gamma_n, dt = t_c/50), its 12-layer base, t <= 2000 and its
+    averaging; the segregation one the 83.3 x 5 box with 5000 small particles at 25 deg."""
+    cfg = load(name)
+    sp = cfg["species"]
+    assert (sp["t_c"], sp["e"], sp["mu_c"], sp["gt_over_gn"]) == (0.005, 0.88, 0.5, 1.0)
+    assert sp["kt_over_kn"] == pytest.approx(2 / 7)
+    assert cfg["numerics"]["steps_per_collision"] == 50 and cfg["numerics"]["t_end"] == 2000.0
+    assert cfg["base"]["layers"] == 12.0
+    runs = G.expand_runs(cfg)
+    if name == "reference-segregation.yaml":
+        seg = [r for r in runs if r.kind == "segregation"]
+        s = cfg["campaigns"]["segregation"]
+        assert (s["Lx"], s["Ly"], s["theta"], s["phi0"]) == (83.3, 5.0, 25.0, 0.5)
+        n_small = s["phi0"] * s["H"] * s["Lx"] * s["Ly"]  # H Lx Ly (pi/6) / (pi/6)
+        assert n_small == pytest.approx(5000, rel=1e-9)
+        inv = sorted({round(1 / r.sigma, 6) for r in seg if r.sigma < 1})
+        assert inv[0] == pytest.approx(1.1) and inv[-1] == pytest.approx(2.0)
+    else:
+        assert cfg["numerics"]["averaging_time"] == 100.0
+        b = cfg["campaigns"]["chute"]["hstop_bisection"]
+        assert b["enabled"] and b["tolerance"] <= 0.25 and min(b["H"]) <= 2 and max(b["H"]) >= 16
+        assert len({r.H for r in runs}) >= 3  # the flow rule from several heights

@@ -288,3 +288,20 @@ def test_accessor_is_registered_by_import_granflow(lib_path):
                           timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert float(proc.stdout) == pytest.approx(float(gc.K(open_library(lib_path), 24.0)))
+
+
+def test_paper_reference_values_and_comparison():
+    """granflow.reference holds Weinhart et al. 2012 Table 1/2, Eq. 52-53 and T-eq. 29 as
+    printed; compare_with_paper marks agreement within 2 stderr or 5 %."""
+    from granflow.reference import compare_with_paper, paper_value
+
+    assert paper_value("hstop", "delta2", 1.0) == 32.780
+    assert paper_value("flow_rule", "gamma", 0.5) == -0.236
+    assert paper_value("alpha", "alpha_constant", 0.5) == 1.142
+    assert paper_value("stress_ratio", "d1") == 21.50 and paper_value("Ps_law", "k") == 5.21
+    assert math.isnan(paper_value("hstop", "A", 0.3))
+    f = _fit("stress_ratio", dict(d0=140.0, d1=21.9), stderr_frac=0.01, contact_law="linear")
+    rows = {r["parameter"]: r for r in compare_with_paper([f])}
+    assert rows["d0"]["agrees"] is False  # 8 off, stderr 1.4, 5 % = 6.6
+    assert rows["d1"]["agrees"] is True   # 0.4 off, 2 stderr = 0.44
+    assert rows["d1"]["z"] == pytest.approx((21.9 - 21.5) / 0.219)

@@ -83,6 +83,16 @@ def test_tiny_campaign_end_to_end(tiny):
     state = json.loads(sorted((res / "hstop" / "linear" / "lambda~1").glob("step~*.json"),
                               key=lambda p: int(p.stem.split("~")[1]))[-1].read_text())
     assert state["search"]["next"] is None and len(state["search"]["runs"]) == 3
+    # the bisection chain at H = 2: two bracket runs, in the table, stopped as soon as decided
+    steps = sorted((res / "hstop" / "linear" / "lambda~1" / "bisect" / "H~2" / "rep~0")
+                   .glob("step~*.json"),
+                   key=lambda p: int(p.stem.split("~")[1]))
+    last = json.loads(steps[-1].read_text())
+    assert last["bisection"]["next"] is None and len(last["bisection"]["runs"]) == 2
+    for t, st in last["bisection"]["runs"]:
+        run = f"bracket/linear/lambda~1/theta~{t:g}/H~2"
+        assert run in runs and st in ("arrested", "flowing", "undecided")
+        assert table.loc[table["run"] == run, "state"].item() == st
     for t, h, _ in state["search"]["runs"]:
         assert f"chute/linear/lambda~1/theta~{t:g}/H~{h:g}" in runs
     # a run directory has the Paramspace layout and every output of the job contract

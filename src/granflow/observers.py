@@ -124,6 +124,10 @@ class MonitorObserver:
             cls = self.monitor.classify()
         state = dec.state if dec.stop else cls.state
         start = dec.steady_start if dec.stop else cls.onset
+        if dec.stop and dec.reason == "flowing":
+            # a bracketing run stopped once it was decisively not arresting: flowing for hstop,
+            # but without the averaging a steady closure needs
+            state = "flowing"
         return {
             "flow_state": state,
             "steady_start": float("nan") if start is None else float(start),

@@ -63,6 +63,8 @@ PARAMETERS = {
     "sample_interval": "time between samples (default t_c/2)",
     "checkpoint_every_s": "wall-clock seconds between checkpoints",
     "early_stop": "stop when arrested / accelerating / steady long enough (default true)",
+    "stop_when_flowing": "stop as soon as the run is decisively not arresting, flow state "
+                         "'flowing' (hstop brackets; default false)",
     "averaging_time": "averaging time after the steady onset, > 0 (paper 100)",
     "check_every": "time between steady-state checks, > 0",
     "min_accelerating_time": "earliest time an accelerating stop is allowed (default t_end/4)",
@@ -96,7 +98,7 @@ RANGES = {
 }
 #: parameters that must be integers, true/false, or one of a few names
 INTEGER_PARAMETERS = ("seed", "cg_every")
-BOOLEAN_PARAMETERS = ("early_stop",)
+BOOLEAN_PARAMETERS = ("early_stop", "stop_when_flowing")
 CHOICE_PARAMETERS = ("contact_law", "cg_base_line")
 #: parameters that may be null (their default is derived from others)
 OPTIONAL_PARAMETERS = ("sample_interval", "min_accelerating_time", "base_t_c", "base_e", "base_mu_c")
@@ -162,7 +164,8 @@ def validate_params(params: dict, *, check_machine: bool = True) -> dict:
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
              averaging_time=100.0, check_every=10.0, min_accelerating_time=None, cg_width=0.25,
-             cg_dz=0.05, cg_window=10.0, cg_every=1, cg_base_line="contact_then_down")
+             cg_dz=0.05, cg_window=10.0, cg_every=1, cg_base_line="contact_then_down",
+             stop_when_flowing=False)
     p.update(params)
     for key in ("base_t_c", "base_e", "base_mu_c"):
         p.setdefault(key, None)
@@ -471,7 +474,7 @@ def _observers(p: dict, cfg: ChuteConfig, series, min_onset: float = 0.0):
     monitor = SteadyStateMonitor(t_cap=p["t_end"], averaging_time=p["averaging_time"],
                                  check_every=p["check_every"],
                                  min_accelerating_time=p["min_accelerating_time"],
-                                 min_onset=min_onset)
+                                 min_onset=min_onset, stop_when_flowing=p["stop_when_flowing"])
     return profile_obs, MonitorObserver(monitor, series)
 
 

@@ -32,6 +32,8 @@ GRID_RUNS = G.expand_runs(config)
 CHUTE = G.campaign_cfg(config, "chute")
 SEARCH = (CHUTE.get("hstop_search") or {}) if G.enabled(config, "chute") else {}
 SEARCH_ON = bool(SEARCH.get("enabled", False))
+BISECT = (CHUTE.get("hstop_bisection") or {}) if G.enabled(config, "chute") else {}
+BISECT_ON = bool(BISECT.get("enabled", False))
 SEG = G.campaign_cfg(config, "segregation")
 SEG_WINDOW = float(
     SEG.get("profile_window")
@@ -104,7 +106,9 @@ def cluster_threads(rule):
 
 
 wildcard_constraints:
-    kind="chute|segregation",
+    kind="chute|segregation|bracket",
+    H="[0-9][0-9.e+-]*",
+    k="[0-9]+",
     law="linear|hertz|plastic",
     point=G.POINT_REGEX,
     lam="[0-9][0-9.e+-]*",
@@ -186,12 +190,65 @@ def hstop_search_inputs():
     return states, rows
 
 
+# ----------------------------------------------------------------------------- hstop bisection
+def bisect_chains():
+    """(law, lambda, H, replicate) of every hstop bisection chain."""
+    if not BISECT_ON:
+        return []
+    laws = CHUTE.get("contact_law") or ["linear"]
+    lams = BISECT.get("lambda") or CHUTE.get("lambda") or [1.0]
+    reps = int(BISECT.get("replicates", 1))
+    return [(str(law), G.format_value(lam), G.format_value(H), str(k))
+            for law in laws for lam in lams for H in BISECT.get("H") or [] for k in range(reps)]
+
+
+def bisect_step_input(wildcards):
+    """Step i needs state i-1 (a checkpoint) and the bracket run that state proposes."""
+    i = int(wildcards.i)
+    if i == 0:
+        return {}
+    prev = checkpoints.hstop_bisect_step.get(law=wildcards.law, lam=wildcards.lam,
+                                             H=wildcards.H, k=wildcards.k,
+                                             i=str(i - 1)).output[0]
+    point = HS.bisection_next_point(HS.read_state(prev))
+    if point is None:
+        raise ValueError(f"hstop bisection {prev} is finished; there is no step {i}")
+    return {"state": prev, "summary": os.path.join(run_dir(point), "summary.json")}
+
+
+def bisect_step_args(wildcards, input):
+    if int(wildcards.i) == 0:
+        settings = {k: v for k, v in BISECT.items()
+                    if k not in ("enabled", "lambda", "H", "replicates")}
+        return f"--settings {shlex.quote(json.dumps(settings, sort_keys=True))}"
+    rel = os.path.relpath(os.path.dirname(input.summary), RESULTS)
+    return f"--state {input.state} --summary {input.summary} --run {rel}"
+
+
+def bisect_inputs():
+    """Final state files and row files of every bracket run of every chain."""
+    states, rows = [], []
+    for law, lam, H, k in bisect_chains():
+        i = 0
+        while True:
+            path = checkpoints.hstop_bisect_step.get(law=law, lam=lam, H=H, k=k,
+                                                     i=str(i)).output[0]
+            if HS.bisection_next_point(HS.read_state(path)) is None:
+                break
+            i += 1
+        states.append(path)
+        rows += [os.path.join(run_dir(p), "row.json")
+                 for p in HS.bisection_runs(HS.read_state(path))]
+    return states, rows
+
+
 # ----------------------------------------------------------------------------- collect, targets
 def collect_inputs(wildcards):
     rows = [os.path.join(run_dir(p), "row.json") for p in GRID_RUNS]
     states, search_rows = hstop_search_inputs()
-    rows += [r for r in search_rows if r not in rows]
-    return {"rows": rows, "states": states}
+    b_states, b_rows = bisect_inputs()
+    rows += [r for r in search_rows + b_rows if r not in rows]
+    return {"rows": rows, "states": states + b_states}
 
 
 def final_targets():

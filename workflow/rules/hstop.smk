@@ -22,3 +22,30 @@ checkpoint hstop_step:
     shell:
         "{params.gf} campaign hstop-step --law {wildcards.law} --lam {wildcards.lam}"
         " {params.args} --out {output} > {log} 2>&1"
+
+
+# Concurrent hstop bisection chains (campaigns.chute.hstop_bisection): one chain per (law,
+# lambda, filling height H, replicate k), each a sequence of checkpoint steps like the search
+# above (replicate k: bracket runs with insertion seed + k, directories .../seed~k).  Step 0
+# writes the initial state (first angle: the prior curve's theta_stop(H)); step i records the
+# flow state of the bracket run state i-1 proposed (bracket/<law>/lambda~L/theta~T/H~H, a chute
+# run that stops as soon as it is decisively flowing) and proposes the next angle, until the
+# bracket is `tolerance` wide.  Chains at different H are independent, so they run side by side.
+
+
+checkpoint hstop_bisect_step:
+    input:
+        unpack(bisect_step_input),
+    output:
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/rep~{{k}}/step~{{i}}.json",
+    log:
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/rep~{{k}}/step~{{i}}.log",
+    params:
+        gf=GRANFLOW,
+        args=bisect_step_args,
+    localrule: True
+    conda:
+        CONDA_ENV
+    shell:
+        "{params.gf} campaign hstop-bisect --law {wildcards.law} --lam {wildcards.lam}"
+        " --H {wildcards.H} --replicate {wildcards.k} {params.args} --out {output} > {log} 2>&1"

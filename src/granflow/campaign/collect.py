@@ -42,7 +42,7 @@ _AVERAGES = {"flow_height": "h", "u_bar": "u_bar", "froude": "F", "alpha": "alph
              "rho_bar": "rho_bar", "rho_c": "rho_c"}
 #: extra (non-schema) columns every row carries
 EXTRA_COLUMNS = ("kind", "run", "mu_bar", "t_final", "steady_start", "stop_reason", "n_flow",
-                 "state_confidence", "segregation_state")
+                 "state_confidence", "segregation_state", "replicate")
 _STRING_EXTRAS = ("kind", "run", "stop_reason", "segregation_state")
 EXTRA_ATTRS = {
     "kind": {"long_name": "campaign the run belongs to (chute or segregation)"},
@@ -55,6 +55,7 @@ EXTRA_ATTRS = {
     "state_confidence": U.cf(U.DIMENSIONLESS, "confidence of the flow-state classification"),
     "segregation_state": {"long_name": "segregated state of a bidisperse run (steady, drifting; "
                                        "empty for monodisperse runs)"},
+    "replicate": U.cf(U.DIMENSIONLESS, "replicate index k of the run point (insertion seed + k)"),
 }
 
 
@@ -261,7 +262,7 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
                stop_reason=str(summ.get("stop_reason", "")).split(":")[0],
                n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")),
                segregation_state="" if seg_state is None else
-               ("steady" if seg_state else "drifting"))
+               ("steady" if seg_state else "drifting"), replicate=float(point.replicate))
     out = {"row": row, "excluded": None, "segregation_fit": None, "segregation_profile": None}
     if row["state"] not in FLOW_STATES:
         out["excluded"] = (f"flow state {row['state']!r} (not one of {FLOW_STATES}): "

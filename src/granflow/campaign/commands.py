@@ -7,7 +7,8 @@ check-config   validate campaign configuration file(s) (merged in order) against
 expand         list the run directories a configuration defines
 run-params     write one run's ``params.yaml`` (input of ``granflow simulate``)
 row            one campaign-table row from a finished run (+ Ps fit for bidisperse runs)
-hstop-step     one step of the adaptive hstop search (Weinhart et al. 2012 §6)
+hstop-step     one step of the adaptive hstop search
+hstop-bisect   one step of an hstop bisection chain at one filling height
 collect        rows -> campaign table (netCDF + CSV), excluded runs, segregation fits
 fit            every closure fit of the table -> fits.json + closures.csv
 library        write (or reuse) the versioned closure library; copy it to a fixed path
@@ -103,6 +104,25 @@ def cmd_hstop_step(args):
     print(f"hstop search {args.law} lambda={args.lam} step {state['step']}: "
           + (f"{last['run']} {last['flow_state']}; " if last else "")
           + (f"next {nxt.path}" if nxt else f"finished ({state['search']['done_reason']})"))
+
+
+def cmd_bisect_step(args):
+    from . import hstop as hs
+
+    if args.state is None:
+        state = hs.init_bisection(args.law, args.lam, args.H, json.loads(args.settings or "{}"),
+                                  replicate=args.replicate)
+    else:
+        if args.summary is None:
+            raise ValueError("hstop-bisect --state needs --summary of the proposed run")
+        state = hs.bisection_step(hs.read_state(args.state), args.summary, args.run)
+    hs.write_state(state, args.out)
+    nxt = hs.bisection_next_point(state)
+    last = state.get("last")
+    print(f"hstop bisection {args.law} lambda={args.lam} H={args.H} replicate "
+          f"{state.get('replicate', 0)} step {state['step']}: "
+          + (f"{last['run']} {last['flow_state']}; " if last else "")
+          + (f"next {nxt.path}" if nxt else f"finished ({state['bisection']['note']})"))
 
 
 def cmd_collect(args):
@@ -218,6 +238,18 @@ def register(subparsers):
     p.add_argument("--run", default=None, help="that run's directory (checked)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_hstop_step)
+
+    p = sub.add_parser("hstop-bisect", help="one step of an hstop bisection chain (one H)")
+    p.add_argument("--law", required=True)
+    p.add_argument("--lam", type=float, required=True)
+    p.add_argument("--H", type=float, required=True)
+    p.add_argument("--replicate", type=int, default=0, help="replicate k (insertion seed + k)")
+    p.add_argument("--settings", default=None, help="bisection settings (JSON), step 0")
+    p.add_argument("--state", default=None, help="previous state (omit for step 0)")
+    p.add_argument("--summary", default=None, help="summary.json of the proposed run")
+    p.add_argument("--run", default=None, help="that run's directory (checked)")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_bisect_step)
 
     p = sub.add_parser("collect", help="campaign table from row files")
     p.add_argument("rows", nargs="*")

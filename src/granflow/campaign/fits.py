@@ -77,6 +77,8 @@ def closure_rows(fits) -> pd.DataFrame:
                          "status": r.state, "form": r.form, "ok": bool(r.ok),
                          "fit_error": r.error, "n_points": r.n_points,
                          "heldout_max_abs_z": r.diagnostics.get("heldout_max_abs_z", math.nan),
+                         "between_seed_fraction": (r.diagnostics.get("uncertainty_split") or {})
+                         .get(p, {}).get("between", math.nan),
                          "chi2_dof": (r.diagnostics.get("chi2", math.nan)
                                       / r.diagnostics["dof"]) if r.diagnostics.get("dof") else
                          math.nan,
@@ -84,8 +86,8 @@ def closure_rows(fits) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["kind", "equation", "contact_law", "lambda", "sigma",
                                        "parameter", "value", "stderr", "parameter_status",
                                        "parameter_reason", "status", "form", "ok", "fit_error",
-                                       "n_points", "heldout_max_abs_z", "chi2_dof", "message",
-                                       "selection"])
+                                       "n_points", "heldout_max_abs_z", "between_seed_fraction",
+                                       "chi2_dof", "message", "selection"])
 
 
 def write_fits(fits, out_json, out_csv=None):

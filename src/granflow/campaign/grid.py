@@ -4,10 +4,18 @@ A run point is fully described by its directory (Paramspace style), relative to 
 results folder ``results/<name>/``::
 
     chute/<law>/lambda~<lam>/theta~<theta>/H~<H>                  (closure runs, sigma = 1)
+    bracket/<law>/lambda~<lam>/theta~<theta>/H~<H>                (hstop bisection runs: stop
+                                                                   once decisively flowing)
     segregation/<law>/lambda~<lam>/theta~<theta>/H~<H>/sigma~<s>   (bidisperse runs)
 
 so that a rule can rebuild the run's parameters from its output path alone (the grid runs and
-the points proposed by the adaptive hstop search share one ``simulate`` rule).  Numbers are
+the points proposed by the adaptive hstop search share one ``simulate`` rule).  Replicates
+(``replicates: n``, globally under ``numerics`` or per grid block) add ``/seed~k`` for
+k = 1 .. n - 1: the same point with the insertion seed ``seed + k`` (replicate 0 keeps the plain
+directory and the configured seed, so a campaign without replicates is unchanged).  Replicates
+share the rough base of their (lambda, box): they measure the scatter of the flow over one
+boundary, the quantity a closure fitted to that base must be given; the base realisation is a
+separate (systematic) question, studied by changing ``base.seed``.  Numbers are
 written as the shortest string that reads back to the same float, without a trailing ``.0``
 (``24``, ``0.5``, ``0.6666666666666666``).
 
@@ -21,7 +29,7 @@ import math
 import re
 from dataclasses import dataclass
 
-KINDS = ("chute", "segregation")
+KINDS = ("chute", "segregation", "bracket")
 
 #: configuration ``species`` keys -> run parameter names (granflow.simulate.PARAMETERS)
 SPECIES_KEYS = ("t_c", "e", "mu_c", "kt_over_kn", "gt_over_gn", "v_ref", "base_t_c", "base_e",
@@ -33,10 +41,11 @@ NUMERICS_KEYS = ("t_end", "averaging_time", "check_every", "min_accelerating_tim
 
 _NUM = r"[0-9][0-9.e+-]*"
 _RUN_RE = re.compile(
-    rf"(?P<kind>chute|segregation)/(?P<law>[A-Za-z_]+)/lambda~(?P<lam>{_NUM})/"
-    rf"theta~(?P<theta>{_NUM})/H~(?P<H>{_NUM})(?:/sigma~(?P<sigma>{_NUM}))?")
+    rf"(?P<kind>chute|segregation|bracket)/(?P<law>[A-Za-z_]+)/lambda~(?P<lam>{_NUM})/"
+    rf"theta~(?P<theta>{_NUM})/H~(?P<H>{_NUM})(?:/sigma~(?P<sigma>{_NUM}))?"
+    rf"(?:/seed~(?P<rep>[0-9]+))?")
 #: regular expression of the ``point`` part of a run directory (for Snakemake wildcard constraints)
-POINT_REGEX = rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?"
+POINT_REGEX = rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?(/seed~[0-9]+)?"
 
 
 def format_value(x) -> str:
@@ -60,6 +69,7 @@ class RunPoint:
     theta: float
     H: float
     sigma: float = 1.0
+    replicate: int = 0
 
     @property
     def path(self) -> str:
@@ -79,6 +89,8 @@ def run_path(p: RunPoint) -> str:
          f"H~{format_value(p.H)}")
     if p.kind == "segregation":
         s += f"/sigma~{format_value(p.sigma)}"
+    if p.replicate:
+        s += f"/seed~{int(p.replicate)}"
     return s
 
 
@@ -92,7 +104,8 @@ def parse_run_path(path: str) -> RunPoint:
     if g["kind"] == "segregation" and g["sigma"] is None:
         raise ValueError(f"segregation run directory {path!r} lacks sigma~")
     return RunPoint(g["kind"], g["law"], float(g["lam"]), float(g["theta"]), float(g["H"]),
-                    float(g["sigma"]) if g["sigma"] is not None else 1.0)
+                    float(g["sigma"]) if g["sigma"] is not None else 1.0,
+                    int(g["rep"]) if g["rep"] is not None else 0)
 
 
 def _as_list(x):
@@ -117,18 +130,32 @@ def chute_points(config: dict) -> list[RunPoint]:
     if not enabled(config, "chute"):
         return []
     laws0, lams0 = _as_list(c.get("contact_law", ["linear"])), _as_list(c.get("lambda", [1.0]))
+    reps0 = replicates(config, "chute")
     out = set()
     for block in c.get("grids") or []:
         for law in _as_list(block.get("contact_law", laws0)):
             for lam in _as_list(block.get("lambda", lams0)):
                 for theta in _as_list(block.get("theta")):
                     for H in _as_list(block.get("H")):
-                        out.add(RunPoint("chute", str(law), float(lam), float(theta), float(H)))
+                        for k in range(int(block.get("replicates", reps0))):
+                            out.add(RunPoint("chute", str(law), float(lam), float(theta),
+                                             float(H), replicate=k))
     for pt in c.get("points") or []:
         for law in _as_list(pt.get("contact_law", laws0)):
             for lam in _as_list(pt.get("lambda", lams0)):
-                out.add(RunPoint("chute", str(law), float(lam), float(pt["theta"]), float(pt["H"])))
+                for k in range(int(pt.get("replicates", reps0))):
+                    out.add(RunPoint("chute", str(law), float(lam), float(pt["theta"]),
+                                     float(pt["H"]), replicate=k))
     return sorted(out)
+
+
+def replicates(config: dict, kind: str) -> int:
+    """Replicates per run point: the campaign's ``numerics.replicates``, else the global
+    ``numerics.replicates``, else 1 (a grid block or point may set its own ``replicates``)."""
+    c = campaign_cfg(config, _config_kind(kind))
+    n = (c.get("numerics") or {}).get("replicates",
+                                      (config.get("numerics") or {}).get("replicates", 1))
+    return max(int(n), 1)
 
 
 def segregation_points(config: dict) -> list[RunPoint]:
@@ -139,8 +166,9 @@ def segregation_points(config: dict) -> list[RunPoint]:
     out = set()
     for law in _as_list(c.get("contact_law", ["linear"])):
         for sigma in _as_list(c.get("sigma")):
-            out.add(RunPoint("segregation", str(law), float(c.get("lambda", 1.0)),
-                             float(c["theta"]), float(c["H"]), float(sigma)))
+            for k in range(replicates(config, "segregation")):
+                out.add(RunPoint("segregation", str(law), float(c.get("lambda", 1.0)),
+                                 float(c["theta"]), float(c["H"]), float(sigma), replicate=k))
     return sorted(out)
 
 
@@ -149,8 +177,13 @@ def expand_runs(config: dict) -> list[RunPoint]:
     return chute_points(config) + segregation_points(config)
 
 
+def _config_kind(kind: str) -> str:
+    """The campaign block a run kind takes its settings from (brackets belong to "chute")."""
+    return "chute" if kind == "bracket" else kind
+
+
 def box(config: dict, kind: str) -> tuple[float, float]:
-    c = campaign_cfg(config, kind)
+    c = campaign_cfg(config, _config_kind(kind))
     return float(c.get("Lx", 20.0)), float(c.get("Ly", 10.0))
 
 
@@ -177,11 +210,12 @@ def run_params(config: dict, p: RunPoint) -> dict:
     """Complete ``granflow simulate`` parameters of run ``p`` (validated by the job itself).
 
     Layering: species, then ``numerics``, then the campaign's own ``numerics`` overrides, then
-    the box, base thickness and the grid values of the point.
+    the box, base thickness and the grid values of the point; a ``bracket`` run (hstop
+    bisection) is a chute run that stops as soon as it is decisively flowing.
     """
     species = config.get("species") or {}
     numerics = dict(config.get("numerics") or {})
-    c = campaign_cfg(config, p.kind)
+    c = campaign_cfg(config, _config_kind(p.kind))
     numerics.update(c.get("numerics") or {})
     params = {k: species[k] for k in SPECIES_KEYS if species.get(k) is not None}
     params.update({k: numerics[k] for k in NUMERICS_KEYS if numerics.get(k) is not None})
@@ -190,6 +224,10 @@ def run_params(config: dict, p: RunPoint) -> dict:
                   base_layers=base_settings(config)["layers"])
     if p.kind == "segregation":
         params.update(sigma=p.sigma, phi0=float(c.get("phi0", 0.5)))
+    if p.kind == "bracket":  # arrested or decisively flowing is all a bracket needs
+        params.update(stop_when_flowing=True, early_stop=True)
+    if p.replicate:  # replicate k: the insertion seed + k (the base is shared)
+        params["seed"] = int(params.get("seed", 1)) + int(p.replicate)
     return {k: (float(v) if isinstance(v, int) and not isinstance(v, bool) and k != "seed"
                 and k != "cg_every" else v) for k, v in params.items()}
 

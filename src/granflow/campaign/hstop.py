@@ -76,3 +76,74 @@ def search_runs(state: dict) -> list[RunPoint]:
 def intervals(state: dict):
     """[(H, theta_arrested, theta_flowing)] of a search state (complete brackets only)."""
     return HstopSearch.from_state_dict(state["search"]).intervals()
+
+
+# ----------------------------------------------------------------------------- bisection chains
+#: Bisection keyword arguments a configuration may set (campaigns.chute.hstop_bisection)
+BISECTION_KEYS = ("step", "tolerance", "max_runs", "theta_min", "theta_max", "resolution")
+
+
+def bisection_guess(cfg: dict, H: float, lam: float | None = None) -> float:
+    """Where the chain at height H starts: theta_stop(H) of the configured prior curve (Eq. 45
+    with the prior's delta1, delta2, A -- ``priors: {lambda: {...}}`` per basal roughness, else
+    ``prior``; only a starting point, it never enters a fit), or an explicit per-height guess
+    ``guess: {H: theta}``."""
+    from ..fitting.hstop import theta_stop_eq45
+
+    guess = {float(k): float(v) for k, v in (cfg.get("guess") or {}).items()}
+    for h, t in guess.items():
+        if abs(h - H) < 1e-9:
+            return t
+    prior = cfg.get("prior") or {}
+    for lm, pr in (cfg.get("priors") or {}).items():
+        if lam is not None and abs(float(lm) - float(lam)) < 1e-9:
+            prior = pr
+    return float(theta_stop_eq45(float(H), float(prior.get("delta1", 17.708)),
+                                 float(prior.get("delta2", 32.780)), float(prior.get("A", 3.355))))
+
+
+def init_bisection(law: str, lam: float, H: float, cfg: dict, replicate: int = 0) -> dict:
+    """Step 0 of the bisection chain of (law, lambda, H, replicate): :class:`Bisection` from
+    ``cfg``.  Replicate k brackets the same height with runs of insertion seed + k."""
+    from ..steady.bisection import Bisection
+
+    b = Bisection(float(H), bisection_guess(cfg, float(H), float(lam)),
+                  **{k: cfg[k] for k in BISECTION_KEYS if cfg.get(k) is not None})
+    return {"law": law, "lam": float(lam), "H": float(H), "replicate": int(replicate),
+            "step": 0, "bisection": b.state_dict()}
+
+
+def bisection_next_point(state: dict) -> RunPoint | None:
+    nxt = state["bisection"]["next"]
+    if nxt is None:
+        return None
+    return RunPoint("bracket", state["law"], float(state["lam"]), float(nxt), float(state["H"]),
+                    replicate=int(state.get("replicate", 0)))
+
+
+def bisection_step(state: dict, run_summary_path, run_rel: str | None = None) -> dict:
+    """Record the flow state of the run the chain proposed; return the next state."""
+    from ..steady.bisection import Bisection
+
+    point = bisection_next_point(state)
+    if point is None:
+        raise ValueError("this hstop bisection is already finished; no further step")
+    if run_rel is not None:
+        got = parse_run_path(run_rel)
+        if got != point:
+            raise ValueError(f"run {run_rel} is not the proposed point {point.path}")
+    with open(run_summary_path) as fh:
+        flow_state = json.load(fh)["flow_state"]
+    b = Bisection.from_state_dict(state["bisection"])
+    b.record(point.theta, flow_state)
+    return {"law": state["law"], "lam": state["lam"], "H": state["H"],
+            "replicate": int(state.get("replicate", 0)),
+            "step": int(state["step"]) + 1, "bisection": b.state_dict(),
+            "last": {"theta": point.theta, "flow_state": flow_state, "run": point.path}}
+
+
+def bisection_runs(state: dict) -> list[RunPoint]:
+    """The simulated runs of a (final) bisection state."""
+    return [RunPoint("bracket", state["law"], float(state["lam"]), float(t), float(state["H"]),
+                     replicate=int(state.get("replicate", 0)))
+            for t, _ in state["bisection"]["runs"]]

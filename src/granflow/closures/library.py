@@ -147,6 +147,7 @@ def _closure_variables(results, default_contact_law):
         preason = {p: np.full(shape, "", dtype=object) for p in spec.params}
         diag = {k: np.full(shape, np.nan) for k in ("heldout_max_abs_z", "chi2_dof",
                                                      "birge_ratio")}
+        between = {p: np.full(shape, np.nan) for p in spec.params}
         heldout_json = np.full(shape, "{}", dtype=object)
         ens = {}
         rmin = {v: np.full(shape, np.nan) for v in spec.ranges}
@@ -181,6 +182,9 @@ def _closure_variables(results, default_contact_law):
             if d.get("dof"):
                 diag["chi2_dof"][idx] = d.get("chi2", np.nan) / d["dof"]
             diag["birge_ratio"][idx] = d.get("birge_ratio", np.nan)
+            for p, parts in (d.get("uncertainty_split") or {}).items():
+                if p in between:
+                    between[p][idx] = parts.get("between", np.nan)
             heldout_json[idx] = json.dumps({k: (v if math.isfinite(v) else None)
                                             for k, v in d.get("heldout_z", {}).items()},
                                            sort_keys=True)
@@ -239,6 +243,12 @@ def _closure_variables(results, default_contact_law):
                 "criterion": CRITERION})
             data_vars[f"{kind}_{p}_reason"] = (dims, preason[p], {
                 "long_name": f"why {kind} parameter {p} has its status", "closure_kind": kind})
+        for p in spec.params:
+            if np.isfinite(between[p]).any():
+                data_vars[f"{kind}_{p}_between_seed_fraction"] = (dims, between[p], U.cf(
+                    U.DIMENSIONLESS, f"share of the variance of {kind} parameter {p} from the "
+                    "scatter between seeds (replicates; the rest is within-run)",
+                    closure_kind=kind))
         data_vars[f"{kind}_heldout_max_abs_z"] = (dims, diag["heldout_max_abs_z"], U.cf(
             U.DIMENSIONLESS, f"largest held-out (leave-one-out) |z| of the {kind} closure",
             closure_kind=kind))

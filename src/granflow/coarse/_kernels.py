@@ -155,6 +155,20 @@ def cdf_table(width, cutoff, dz, m_sub):
 
 
 @njit(cache=True)
+def hermite_weights(t):
+    """Node index j = floor(t) (>= 0) and the cubic Hermite weights (h00, h10, h01, h11) at the
+    fraction t - j, for the table of :func:`cdf_table`."""
+    j = int(math.floor(t))
+    if j < 0:
+        j = 0
+    fr = t - j
+    fr2 = fr * fr
+    fr3 = fr2 * fr
+    return (j, 2.0 * fr3 - 3.0 * fr2 + 1.0, fr3 - 2.0 * fr2 + fr, -2.0 * fr3 + 3.0 * fr2,
+            fr3 - fr2)
+
+
+@njit(cache=True)
 def cdf_on_grid(zc, z0, dz, k0, n_pts, width, cutoff, tab, m_sub, out):
     """out[k] = G(z0 + (k0 + k) dz - zc) for k < n_pts: 0 below and 1 above the support of a
     kernel centred at ``zc``, the cubic Hermite table inside it (weights fixed per centre, since
@@ -167,17 +181,7 @@ def cdf_on_grid(zc, z0, dz, k0, n_pts, width, cutoff, tab, m_sub, out):
     if a0 <= -lim:
         kin = int(math.floor((-lim - a0) / dz)) + 1
     a_in = a0 + kin * dz
-    t = (a_in + lim) / h
-    j = int(math.floor(t))
-    if j < 0:
-        j = 0
-    fr = t - j
-    fr2 = fr * fr
-    fr3 = fr2 * fr
-    h00 = 2.0 * fr3 - 3.0 * fr2 + 1.0
-    h10 = fr3 - 2.0 * fr2 + fr
-    h01 = -2.0 * fr3 + 3.0 * fr2
-    h11 = fr3 - fr2
+    j, h00, h10, h01, h11 = hermite_weights((a_in + lim) / h)
     nt = tab.shape[0]
     for k in range(n_pts):
         a = a0 + k * dz
@@ -417,17 +421,7 @@ def spread_particles(pos, vel, mass, diameter, species, fixed, coef, has_coef, w
         if hc == 0:
             continue
         # cubic Hermite interpolation of G; weights fixed per particle (nodes aligned to grid)
-        t = (a0 + lim) / h
-        j = int(math.floor(t))
-        if j < 0:
-            j = 0
-        fr = t - j
-        fr2 = fr * fr
-        fr3 = fr2 * fr
-        h00 = 2.0 * fr3 - 3.0 * fr2 + 1.0
-        h10 = fr3 - 2.0 * fr2 + fr
-        h01 = -2.0 * fr3 + 3.0 * fr2
-        h11 = fr3 - fr2
+        j, h00, h10, h01, h11 = hermite_weights((a0 + lim) / h)
         n_pts = k1 - k0 + 1
         for k in range(n_pts):
             Gk[k] = h00 * tab[j, 0] + h10 * tab[j, 1] + h01 * tab[j + 1, 0] + h11 * tab[j + 1, 1]

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from ..units import RHO_PARTICLE
-from .forms import Form, fit_forms
+from .forms import Form, _parts, fit_forms
 from .result import FitResult, data_range, failed_fit, finite_mask
 
 EQ52 = "Weinhart et al. 2012 Eq. (52)"
@@ -67,7 +67,7 @@ def _density_forms(theta_ref: float):
 
 def fit_bulk_density(theta, rho_c, *, sigma=None, rho_p: float = RHO_PARTICLE, lam=None,
                      contact_law=None, min_points: int = 4, ids=None, selection: str = "",
-                     seed: int = 0) -> FitResult:
+                     seed: int = 0, sigma_parts=None) -> FitResult:
     """Fit Eq. (52) to bulk densities rho_c (m d-3) of steady runs at inclinations theta (deg).
 
     ``sigma``: standard errors of rho_c (weights, absolute covariance).  Falls back to a linear,
@@ -93,12 +93,12 @@ def fit_bulk_density(theta, rho_c, *, sigma=None, rho_p: float = RHO_PARTICLE, l
         "density", EQ52, DENSITY_PARAMS, forms, th, y, sigma=sd, ids=ids[m], coords=coords,
         valid_range={"theta": data_range(th)}, extra={"rho_p": rho_p, "theta_ref": theta_ref},
         error_measure="Eq. (49) of rho_c/rho_p - fit (volume fraction)", selection=selection,
-        seed=seed)
+        seed=seed, sigma_parts={k: v / rho_p for k, v in (_parts(sigma_parts, m) or {}).items()})
 
 
 def fit_stress_ratio(theta, K, *, sigma=None, lam=None, contact_law=None,
-                     min_points: int = 3, ids=None, selection: str = "", seed: int = 0
-                     ) -> FitResult:
+                     min_points: int = 3, ids=None, selection: str = "", seed: int = 0,
+                     sigma_parts=None) -> FitResult:
     """Fit Eq. (53) K = 1 + (theta - d1)/d0 to stress ratios of steady runs (theta in degrees).
 
     ``sigma``: standard errors of K.  Falls back to a constant ``K_ref`` over the fitted range
@@ -129,4 +129,5 @@ def fit_stress_ratio(theta, K, *, sigma=None, lam=None, contact_law=None,
     ]
     return fit_forms("stress_ratio", EQ53, STRESS_RATIO_PARAMS, forms, th, y, sigma=sd,
                      ids=ids[m], coords=coords, valid_range={"theta": data_range(th)},
-                     error_measure="Eq. (49) of K - K_fit", selection=selection, seed=seed)
+                     error_measure="Eq. (49) of K - K_fit", selection=selection, seed=seed,
+                     sigma_parts=_parts(sigma_parts, m))

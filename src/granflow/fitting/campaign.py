@@ -25,6 +25,7 @@ records that they were attempted).  The result is a flat list ready for
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 
 import numpy as np
@@ -54,6 +55,63 @@ def _ids(runs: pd.DataFrame) -> np.ndarray:
                      zip(runs["theta"], runs["H"], runs["lam"], runs["sigma"])])
 
 
+#: the columns that identify a run point (replicates share them and differ in seed)
+POINT_COLUMNS = ("contact_law", "lam", "theta", "H", "sigma")
+
+
+def between_seed_scatter(runs: pd.DataFrame, col: str) -> tuple[float, int, float]:
+    """(tau, number of replicate groups, pooled within-run variance) of ``col``.
+
+    Runs of one point with different seeds (replicates) scatter by more than each run's own
+    decorrelated standard error shows: tau^2 = max(0, pooled variance of the replicates about
+    their group means - pooled mean of their squared standard errors).  NaN (and 0 groups)
+    without replicates."""
+    if col not in runs.columns or not len(runs):
+        return math.nan, 0, math.nan
+    v = pd.to_numeric(runs[col], errors="coerce")
+    se = pd.to_numeric(runs.get(f"{col}_sem", pd.Series(np.nan, index=runs.index)),
+                       errors="coerce")
+    frame = runs.loc[:, [c for c in POINT_COLUMNS if c in runs.columns]].copy()
+    frame["_v"], frame["_se2"] = v, se ** 2
+    frame = frame[np.isfinite(frame["_v"])]
+    dof = var = within = 0.0
+    n_groups = 0
+    for _, g in frame.groupby(list(c for c in POINT_COLUMNS if c in frame.columns)):
+        if len(g) < 2:
+            continue
+        n_groups += 1
+        k = len(g) - 1
+        dof += k
+        var += k * float(np.var(g["_v"], ddof=1))
+        w = g["_se2"].to_numpy(float)
+        within += k * float(np.nanmean(w)) if np.isfinite(w).any() else 0.0
+    if not n_groups:
+        return math.nan, 0, math.nan
+    return math.sqrt(max(0.0, (var - within) / dof)), n_groups, within / dof
+
+
+def run_uncertainty(runs: pd.DataFrame, col: str):
+    """(sigma, sigma_parts, note) for fitting ``col``: each run's decorrelated standard error
+    (missing ones: the largest of the others) combined with the between-seed scatter of the
+    replicates when there are any -- sigma^2 = sem^2 + tau^2 -- and the two parts for the
+    variance split of the fitted parameters (:func:`granflow.fitting.lsq.variance_split`)."""
+    sem = _col(runs, f"{col}_sem")
+    if sem is None:
+        return None, None, "unweighted (no per-run standard errors in the table)"
+    good = np.isfinite(sem) & (sem > 0)
+    if not good.any():
+        return None, None, "unweighted (no per-run standard errors in the table)"
+    sem = np.where(good, sem, sem[good].max())
+    tau, n_groups, _ = between_seed_scatter(runs, col)
+    if n_groups == 0 or not math.isfinite(tau):
+        return sem, None, ("weighted by the runs' decorrelated standard errors (within-run "
+                           "only: no replicates, so the scatter between seeds is not measured)")
+    total = np.sqrt(sem ** 2 + tau ** 2)
+    return total, {"within": sem, "between": np.full(sem.shape, tau)}, (
+        f"weighted by the runs' decorrelated standard errors combined with the between-seed "
+        f"scatter {tau:.3g} of {n_groups} replicate group(s)")
+
+
 def _col(runs: pd.DataFrame, name: str):
     """A numeric column, or None when absent or all-NaN (e.g. no ``_sem`` in an old table)."""
     if name not in runs.columns:
@@ -72,16 +130,17 @@ def _range(values) -> str:
 
 
 def describe_selection(what: str, pool: pd.DataFrame, used: np.ndarray, left_out: Counter,
-                       weighted: bool) -> str:
-    """One generated sentence: which runs a closure used, their H and theta, and why the others
-    of ``pool`` were left out."""
+                       weighting: str) -> str:
+    """One generated sentence: which runs a closure used, their H and theta, why the others of
+    ``pool`` were left out, and how the runs were weighted."""
     used_runs = pool[used]
     parts = [f"{what}: {int(used.sum())} of {len(pool)} runs used (H = {_range(used_runs['H'])}; "
              f"theta = {_range(used_runs['theta'])} deg)"]
+    if "replicate" in used_runs.columns and (used_runs["replicate"].fillna(0) > 0).any():
+        parts[0] += f", {int((used_runs['replicate'].fillna(0) > 0).sum())} of them replicates"
     if left_out:
         parts.append("left out: " + ", ".join(f"{n} {why}" for why, n in sorted(left_out.items())))
-    parts.append("weighted by the runs' decorrelated standard errors" if weighted
-                 else "unweighted (no per-run standard errors in the table)")
+    parts.append(weighting)
     return "; ".join(parts)
 
 
@@ -161,9 +220,10 @@ def _steady_closures(pool, lam, law, hstop1, tmin, tmax, n_bootstrap, seed):
     steady = pool[use]
     ids = _ids(steady)
     theta, h, F = (steady[c].to_numpy(float) for c in ("theta", "h", "F"))
-    F_sem, a_sem = _col(steady, "F_sem"), _col(steady, "alpha_sem")
+    F_sem, F_parts, F_note = run_uncertainty(steady, "F")
+    a_sem, a_parts, a_note = run_uncertainty(steady, "alpha")
     what = f"steady runs at lambda = {lam:g}, sigma = 1, contact law {law}"
-    sel_F = describe_selection(f"flow rule from {what}", pool, use, left, F_sem is not None)
+    sel_F = describe_selection(f"flow rule from {what}", pool, use, left, F_note)
     sel_F += "; " + UNDECIDED_TREATMENT["steady"]
     if hstop1 is None:
         flow = failed_fit("flow_rule", "Weinhart et al. 2012 Eq. (47)", ("beta", "gamma"),
@@ -171,19 +231,20 @@ def _steady_closures(pool, lam, law, hstop1, tmin, tmax, n_bootstrap, seed):
                           lam=lam, contact_law=law)
     else:
         flow = fit_flow_rule(theta, h, F, hstop1, lam=lam, contact_law=law, sigma=F_sem,
-                             ids=ids, selection=sel_F, n_bootstrap=n_bootstrap, seed=seed)
+                             ids=ids, selection=sel_F, n_bootstrap=n_bootstrap, seed=seed,
+                             sigma_parts=F_parts)
     flow = _with_selection(flow, sel_F, ids)
     out.append(flow)
     if hstop1 is not None:
         out.append(_with_selection(friction_closure(hstop1, flow, theta=theta, h=h, F=F),
                                    sel_F, ids))
-    sel_a = describe_selection(f"shape factor from {what}", pool, use, left, a_sem is not None)
+    sel_a = describe_selection(f"shape factor from {what}", pool, use, left, a_note)
     sel_a += "; " + UNDECIDED_TREATMENT["steady"]
     out.append(_with_selection(
         fit_alpha(theta, h, steady["alpha"].to_numpy(float), lam,
                   hstop1 if hstop1 is not None and hstop1.state != "failed" else None,
                   contact_law=law, sigma=a_sem, ids=ids, selection=sel_a,
-                  n_bootstrap=n_bootstrap, seed=seed), sel_a, ids))
+                  n_bootstrap=n_bootstrap, seed=seed, sigma_parts=a_parts), sel_a, ids))
     return out
 
 
@@ -206,14 +267,15 @@ def _bulk_closures(pool, law, seed):
                  else f"no measured {col}"] += int(bad.sum())
             use &= ~bad
         runs = pool[use]
-        sem = _col(runs, f"{col}_sem")
+        sem, parts, note = run_uncertainty(runs, col)
         sel = describe_selection(
             f"{'bulk density' if kind == 'density' else 'stress ratio'} from steady runs with "
             f"lambda > 0 (lambda = {_range(pool['lam'])}), sigma = 1, contact law {law}", pool,
-            use, left, sem is not None) + "; " + UNDECIDED_TREATMENT["steady"]
+            use, left, note) + "; " + UNDECIDED_TREATMENT["steady"]
         out.append(_with_selection(
             fn(runs["theta"].to_numpy(float), runs[col].to_numpy(float), sigma=sem,
-               contact_law=law, ids=_ids(runs), selection=sel, seed=seed), sel, _ids(runs)))
+               contact_law=law, ids=_ids(runs), selection=sel, seed=seed, sigma_parts=parts),
+            sel, _ids(runs)))
     return out
 
 
@@ -231,10 +293,11 @@ def _ps_law(seg, law, seed):
         left["sigma = 1 (no-segregation control)"] += int(mono.sum())
         use &= ~mono
     runs = seg[use]
-    sem = _col(runs, "Ps_sem")
+    sem, parts, note = run_uncertainty(runs, "Ps")
     sel = describe_selection(
         f"Ps(sigma) law from bidisperse runs of contact law {law} (sigma = {_range(seg['sigma'])})",
-        seg, use, left, sem is not None) + "; " + UNDECIDED_TREATMENT["segregation"]
+        seg, use, left, note) + "; " + UNDECIDED_TREATMENT["segregation"]
     return _with_selection(
         fit_Ps_law(runs["sigma"].to_numpy(float), runs["Ps"].to_numpy(float), sem,
-                   contact_law=law, ids=_ids(runs), selection=sel, seed=seed), sel, _ids(runs))
+                   contact_law=law, ids=_ids(runs), selection=sel, seed=seed,
+                   sigma_parts=parts), sel, _ids(runs))

@@ -20,7 +20,7 @@ import numpy as np
 from scipy import optimize
 
 from .hstop import HSTOP_PARAMS, hstop_eq45
-from .forms import Form, fit_forms
+from .forms import Form, _parts, fit_forms
 from .result import FitResult, data_range, error_eq49, failed_fit, finite_mask
 
 EQ47 = "Weinhart et al. 2012 Eq. (47)"
@@ -98,8 +98,8 @@ def joint_bootstrap(form, x_of, y, hstop1, sigma, n_boot: int, seed: int):
 
 def fit_flow_rule(theta, h, F, hstop1, *, state=None, theta_min=None, theta_max=None,
                   lam=None, contact_law=None, d: float = 1.0, min_points: int = 3, sigma=None,
-                  ids=None, selection: str = "", n_bootstrap: int = 200, seed: int = 0
-                  ) -> FitResult:
+                  ids=None, selection: str = "", n_bootstrap: int = 200, seed: int = 0,
+                  sigma_parts=None) -> FitResult:
     """Fit Eq. (47) F = beta h/hstop(theta; 1) - gamma to steady runs.
 
     Parameters
@@ -172,7 +172,7 @@ def fit_flow_rule(theta, h, F, hstop1, *, state=None, theta_min=None, theta_max=
                     extra={"hstop1": {"delta1": d1, "delta2": d2, "A": A},
                            "n_outside": n_outside},
                     error_measure="Eq. (49) of F - F_fit", selection=selection, seed=seed,
-                    bootstrap=boot)
+                    bootstrap=boot, sigma_parts=_parts(sigma_parts, mask))
     if n_outside:
         res = res.replace(message=res.message + f"; dropped {n_outside} outside (delta1, delta2) "
                                                 "of lambda=1")

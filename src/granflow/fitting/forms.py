@@ -23,7 +23,8 @@ import numpy as np
 from scipy import optimize
 
 from .identify import apply_heldout, apply_structure, assess, heldout_zscores
-from .lsq import N_ENSEMBLE, least_squares, n_imputed, prediction_variance, usable_sigma
+from .lsq import (N_ENSEMBLE, least_squares, n_imputed, prediction_variance, usable_sigma,
+                  variance_split)
 from .result import FitResult, bootstrap_stderr, data_range, error_eq49, failed_fit
 
 
@@ -86,7 +87,7 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
               ids=None, coords=None, valid_range=None, extra=None, error_measure: str = "",
               selection: str = "", n_ensemble: int = N_ENSEMBLE, seed: int = 0,
               bootstrap: Callable | None = None, heldout: bool = True,
-              structure_x=None) -> FitResult:
+              structure_x=None, sigma_parts: dict | None = None) -> FitResult:
     """Fit ``forms`` (full first) to (x, y); return the first identified one (module docstring).
 
     ``x`` may be any array-like the models accept (e.g. a 2-row array); ``y`` 1D.  ``sigma``:
@@ -96,6 +97,9 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
     gives the standard errors (e.g. a joint bootstrap over an hstop fit the model depends on).
     ``structure_x``: the closure's physical input (default ``x`` when 1D), against which the
     residuals are tested for structure the form misses (:func:`.identify.residual_structure`).
+    ``sigma_parts``: ``{part: per-run standard deviations}`` whose squares add up to ``sigma``^2
+    (within-run and between-seed): each parameter's variance is split into them
+    (:func:`.lsq.variance_split`, ``diagnostics["uncertainty_split"]``).
     """
     coords = dict(coords or {})
     y = np.asarray(y, dtype=float)
@@ -138,6 +142,12 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
         res = assess(res, form="full" if k == 0 else form.name, free=list(form.free),
                      fixed=fixed)
         res = res.replace(runs_used=tuple(ids), selection=selection)
+        if sigma_parts and lsq.weighted:
+            split = variance_split(form.model, x, lsq.params, sigma_parts)
+            if split:
+                d = dict(res.diagnostics)
+                d["uncertainty_split"] = split
+                res = res.replace(diagnostics=d)
         sx = structure_x if structure_x is not None else (x if np.ndim(x) == 1 else None)
         if sx is not None:
             res = apply_structure(res, sx, lsq.residuals, s)
@@ -192,6 +202,13 @@ def _with_heldout(res: FitResult, form: Form, x, y, s, ids) -> FitResult:
 
     z = heldout_zscores(ids, y, s, refit, len(form.free))
     return apply_heldout(res, z, dof=None if s is not None else len(y) - 1 - len(form.free))
+
+
+def _parts(sigma_parts, mask):
+    """``sigma_parts`` restricted to the runs of ``mask`` (see :func:`.forms.fit_forms`)."""
+    if not sigma_parts:
+        return None
+    return {k: np.asarray(v, dtype=float).ravel()[mask] for k, v in sigma_parts.items()}
 
 
 def data_valid_range(**arrays) -> dict:

@@ -47,7 +47,7 @@ INTERVAL_COLUMNS = ("H", "theta_arrested_max", "theta_flowing_min")
 #: states counted as flowing for the demarcation (the paper's binary rule, §6: a run is arrested
 #: when E_kin/E_ela falls below 1e-5, otherwise flowing -- including runs left "undecided" at
 #: their cap, which did not arrest)
-FLOWING_STATES = ("steady", "accelerating", "layered", "oscillating", "undecided")
+FLOWING_STATES = ("steady", "accelerating", "layered", "oscillating", "undecided", "flowing")
 #: optimiser bounds of (delta1, delta2 - delta1, A)
 _LOWER = (0.0, 1e-3, 1e-6)
 _UPPER = (89.0, 60.0, 1e5)

@@ -135,3 +135,39 @@ def prediction_variance(model, x, params, cov, eps: float = 1e-6) -> np.ndarray:
         q[k] += h
         J[:, k] = (np.asarray(model(x, *q), dtype=float).ravel() - f0.ravel()) / h
     return np.einsum("ij,jk,ik->i", J, cov, J)
+
+
+def variance_split(model, x, params, sigma_parts: dict, eps: float = 1e-6) -> dict:
+    """How much of each parameter's variance comes from each part of the runs' uncertainty.
+
+    For a weighted least-squares fit with per-run variances s_i^2 = sum_k v_ik (e.g. within-run
+    and between-seed), the parameter covariance (J^T W J)^-1 with W = diag(1/s^2) splits
+    exactly into sandwich terms C_k = (J^T W J)^-1 J^T W diag(v_k) W J (J^T W J)^-1, sum_k C_k =
+    (J^T W J)^-1.  Returns ``{param: {part: fraction}}`` of the diagonal (fractions sum to 1).
+    ``sigma_parts``: ``{part: standard deviations per run}``."""
+    p = np.asarray(list(params.values()), dtype=float)
+    names = list(params)
+    parts = {k: np.asarray(v, dtype=float) ** 2 for k, v in sigma_parts.items()}
+    total = sum(parts.values())
+    if not np.all(np.isfinite(total) & (total > 0)):
+        return {}
+    f0 = np.asarray(model(x, *p), dtype=float).ravel()
+    J = np.empty((f0.size, p.size))
+    for k in range(p.size):
+        h = eps * max(1.0, abs(p[k]))
+        q = p.copy()
+        q[k] += h
+        J[:, k] = (np.asarray(model(x, *q), dtype=float).ravel() - f0) / h
+    w = 1.0 / total
+    try:
+        A = np.linalg.inv(J.T @ (w[:, None] * J))
+    except np.linalg.LinAlgError:
+        return {}
+    out = {n: {} for n in names}
+    diag_total = np.diag(A)
+    for part, v in parts.items():
+        B = J.T @ ((w * w * v)[:, None] * J)
+        C = A @ B @ A
+        for i, n in enumerate(names):
+            out[n][part] = float(C[i, i] / diag_total[i]) if diag_total[i] > 0 else math.nan
+    return out

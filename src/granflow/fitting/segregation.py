@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 from scipy import integrate, optimize, special, stats
 
-from .forms import Form, fit_forms
+from .forms import Form, _parts, fit_forms
 from .result import FitResult, covariance_stderr, data_range, error_eq49, failed_fit, finite_mask
 
 TEQ28 = "Thornton et al. T-eq. (28)"
@@ -247,7 +247,7 @@ def Ps_teq29(sigma, Pmax, k):
 
 
 def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int = 3, ids=None,
-               selection: str = "", seed: int = 0) -> FitResult:
+               selection: str = "", seed: int = 0, sigma_parts=None) -> FitResult:
     """Fit T-eq. (29) to per-run Peclet numbers Ps at size ratios sigma.
 
     ``Ps_stderr``: each run's standard error of Ps (from decorrelated windows); the points are
@@ -288,4 +288,5 @@ def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int =
     return fit_forms("Ps_law", TEQ29, names, forms, x, y, sigma=s, ids=ids[m], coords=coords,
                      valid_range={"sigma": data_range(x)},
                      extra={"Pmax_lower_bound": lower},
-                     error_measure="Eq. (49) of Ps - Ps_fit", selection=selection, seed=seed)
+                     error_measure="Eq. (49) of Ps - Ps_fit", selection=selection, seed=seed,
+                     sigma_parts=_parts(sigma_parts, m))

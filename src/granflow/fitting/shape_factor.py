@@ -28,7 +28,7 @@ import pandas as pd
 from scipy import integrate
 
 from .hstop import HSTOP_PARAMS, hstop_eq45
-from .forms import Form, fit_forms
+from .forms import Form, _parts, fit_forms
 from .result import FitResult, data_range, failed_fit, finite_mask
 
 EQ54 = "Weinhart et al. 2012 Eq. (54)"
@@ -112,8 +112,8 @@ def alpha_eq55(lam: float, n: int = 2001) -> float:
 
 def fit_alpha_basal_layer(theta, h, alpha, hstop1, *, lam=None, contact_law=None,
                           min_points: int = 2, d: float = 1.0, sigma=None, ids=None,
-                          selection: str = "", n_bootstrap: int = 200, seed: int = 0
-                          ) -> FitResult:
+                          selection: str = "", n_bootstrap: int = 200, seed: int = 0,
+                          sigma_parts=None) -> FitResult:
     """Fit d_lambda of Eq. (54) to measured alpha of steady runs (theta in degrees, h in d).
 
     ``hstop1``: FitResult (or mapping delta1, delta2, A) of hstop(theta; lambda = 1); with a
@@ -168,7 +168,8 @@ def fit_alpha_basal_layer(theta, h, alpha, hstop1, *, lam=None, contact_law=None
                      coords=coords, structure_x=h_m / hs[m],
                      valid_range={"theta": data_range(th_m), "h": data_range(h_m)},
                      extra={"hstop1": p1}, error_measure="Eq. (49) of alpha - alpha_fit",
-                     selection=selection, seed=seed, bootstrap=boot)
+                     selection=selection, seed=seed, bootstrap=boot,
+                     sigma_parts=_parts(sigma_parts, m))
 
 
 def _case_bootstrap_mean(y, n_boot, seed):
@@ -178,7 +179,7 @@ def _case_bootstrap_mean(y, n_boot, seed):
 
 def fit_alpha_constant(alpha, *, theta=None, h=None, lam=None, contact_law=None,
                        min_points: int = 2, sigma=None, ids=None, selection: str = "",
-                       seed: int = 0) -> FitResult:
+                       seed: int = 0, sigma_parts=None) -> FitResult:
     """Constant alpha(lambda) for smooth bases (lambda <= 2/3, Eq. 55): the weighted mean of
     measured alpha (unweighted without ``sigma``), its standard error from the (Birge-inflated)
     covariance.  ``theta`` and ``h`` set the valid range.
@@ -207,19 +208,20 @@ def fit_alpha_constant(alpha, *, theta=None, h=None, lam=None, contact_law=None,
     return fit_forms("alpha", EQ55, ALPHA_PARAMS, forms, np.arange(n, dtype=float), alpha[m],
                      sigma=s, ids=ids[m], coords=coords, valid_range=rng, structure_x=sx,
                      error_measure="Eq. (49) of alpha - alpha_constant", selection=selection,
-                     seed=seed)
+                     seed=seed, sigma_parts=_parts(sigma_parts, m))
 
 
 def fit_alpha(theta, h, alpha, lam: float, hstop1=None, *, contact_law=None,
               constant_up_to: float = 2.0 / 3.0, sigma=None, ids=None, selection: str = "",
-              n_bootstrap: int = 200, seed: int = 0) -> FitResult:
+              n_bootstrap: int = 200, seed: int = 0, sigma_parts=None) -> FitResult:
     """alpha closure for basal roughness ``lam``: constant for lam <= 2/3, Eq. (54) otherwise."""
     if lam <= constant_up_to + 1e-9:
         return fit_alpha_constant(alpha, theta=theta, h=h, lam=lam, contact_law=contact_law,
-                                  sigma=sigma, ids=ids, selection=selection, seed=seed)
+                                  sigma=sigma, ids=ids, selection=selection, seed=seed,
+                                  sigma_parts=sigma_parts)
     if hstop1 is None:
         return failed_fit("alpha", EQ54, ALPHA_PARAMS, "Eq. (54) needs hstop(theta; 1)", 0,
                           lam=lam, contact_law=contact_law)
     return fit_alpha_basal_layer(theta, h, alpha, hstop1, lam=lam, contact_law=contact_law,
                                  sigma=sigma, ids=ids, selection=selection,
-                                 n_bootstrap=n_bootstrap, seed=seed)
+                                 n_bootstrap=n_bootstrap, seed=seed, sigma_parts=sigma_parts)

@@ -17,7 +17,9 @@ sigma          1          size ratio d_small / d_large (1 for monodisperse runs)
 contact_law    --         ``linear`` / ``hertzian`` / ``plastic`` (free string)
 state          --         ``arrested`` / ``steady`` / ``accelerating`` / ``layered`` / ``oscillating``
                           / ``undecided`` (cap reached before the classifier could decide; each
-                          closure states how it treats these runs)
+                          closure states how it treats these runs) / ``flowing`` (an hstop
+                          bracket run stopped once decisively not arresting: flowing for hstop,
+                          no steady averages)
 h              d          flow height, Eq. (42)
 u_bar          sqrt(g d)  depth-averaged velocity, Eq. (33)
 F              1          Froude number u_bar / sqrt(g cos(theta) h)
@@ -57,7 +59,8 @@ STD_COLUMNS = tuple(f"{c}_std" for c in MEASURED_COLUMNS)
 SEM_COLUMNS = tuple(f"{c}_sem" for c in MEASURED_COLUMNS)
 STRING_COLUMNS = ("contact_law", "state")
 CAMPAIGN_COLUMNS = INPUT_COLUMNS + MEASURED_COLUMNS + STD_COLUMNS + SEM_COLUMNS
-FLOW_STATES = ("arrested", "steady", "accelerating", "layered", "oscillating", "undecided")
+FLOW_STATES = ("arrested", "steady", "accelerating", "layered", "oscillating", "undecided",
+               "flowing")
 
 #: CF units and long names of each column (used when the table is stored in a library).
 COLUMN_ATTRS = {

@@ -15,6 +15,11 @@ advances and says when the run can stop:
   after the steady onset, at ``steady_confirmations`` consecutive checks (default 2: every check is
   a new chance for a noisy ramp to look flat once); :attr:`SteadyStateMonitor.steady_start` is where the coarse-grained
   profiles must start;
+* **flowing** (only with ``stop_when_flowing``, for runs that bracket hstop) -- the run is
+  decisively not arresting: the classifier, with a flatness window of ``flowing_window``
+  (default 20) instead of the averaging time, finds it steady at ``steady_confirmations``
+  consecutive checks, or accelerating with a growth of at least :data:`ACCEL_MIN_GROWTH` after
+  the start-up transient.  The paper's binary rule needs nothing more for the demarcation (§6);
 * **t_cap** -- the hard cap (paper: 2000).
 
 Samples are block-averaged into bins of ``sample_interval`` (so a caller may feed every time step
@@ -71,7 +76,8 @@ _CONFIG_KEYS = (
     "t_cap", "averaging_time", "check_every", "sample_interval", "ela_window",
     "min_accelerating_time", "accel_confidence", "accel_growth_factor", "stop_on_oscillating",
     "steady_confirmations",
-    "alpha", "arrest_ratio", "arrest_hold", "n_origins", "min_onset",
+    "alpha", "arrest_ratio", "arrest_hold", "n_origins", "min_onset", "stop_when_flowing",
+    "flowing_window",
 )
 
 
@@ -135,6 +141,8 @@ class SteadyStateMonitor:
         arrest_hold: float = ARREST_HOLD_TIME,
         n_origins: int = 100,
         min_onset: float = 0.0,
+        stop_when_flowing: bool = False,
+        flowing_window: float = 20.0,
     ):
         if averaging_time <= 0 or check_every <= 0 or sample_interval <= 0:
             raise ValueError("averaging_time, check_every and sample_interval must be positive")
@@ -155,6 +163,10 @@ class SteadyStateMonitor:
         self.n_origins = int(n_origins)
         #: earliest steady onset: the start-up transient (insertion fall, landing) is excluded
         self.min_onset = float(min_onset)
+        #: stop as soon as the run is decisively flowing (hstop brackets need no averaging)
+        self.stop_when_flowing = bool(stop_when_flowing)
+        #: flatness window of the flowing test (shorter than the averaging time)
+        self.flowing_window = float(flowing_window)
 
         self._cap = 256
         self._n = 0
@@ -179,6 +191,7 @@ class SteadyStateMonitor:
         self._classification: FlowClassification | None = None
         self._n_checks = 0
         self._steady_streak = 0
+        self._flowing_streak = 0
 
     # ------------------------------------------------------------------ feeding
     def update(self, t: float, e_kin: float, e_ela: float, u_bar: float | None = None) -> None:
@@ -298,6 +311,9 @@ class SteadyStateMonitor:
         self._n_checks += 1
         elapsed = tb - self._t_origin
         cap = tb >= self.t_cap
+        if self.stop_when_flowing and elapsed >= self.flowing_window and not cap:
+            if self._check_flowing(tb):
+                return
         if elapsed < self.averaging_time and not cap:
             self._set_decision(False, "continue", "undecided", tb, None, 0.0,
                                f"t={tb:.6g}: continue, less than averaging_time of data")
@@ -335,6 +351,28 @@ class SteadyStateMonitor:
                                f"t={tb:.6g}: stop at the cap t_cap={self.t_cap:g}; {msg}")
             return
         self._set_decision(False, "continue", c.state, tb, onset, c.confidence, f"t={tb:.6g}: continue; {msg}")
+
+    def _check_flowing(self, tb: float) -> bool:
+        """The bracket runs' stop: steady over ``flowing_window`` (confirmed) or clearly
+        accelerating after the start-up -- decisively not arresting.  True when it stopped."""
+        s = self.series()
+        c = classify_flow(
+            s["time"], s["ratio"], s["u_bar"], trend_window=self.flowing_window,
+            alpha=self.alpha, arrest_ratio=self.arrest_ratio, arrest_hold=self.arrest_hold,
+            n_origins=self.n_origins, min_onset=self.min_onset)
+        if c.state == "arrested":
+            return False  # the regular check stops it
+        onset = c.onset if c.state in ("steady", "layered") else None
+        self._flowing_streak = self._flowing_streak + 1 if onset is not None else 0
+        growth = self._growth(s["ratio"], s["time"]) if c.state == "accelerating" else 0.0
+        if (self._flowing_streak >= self.steady_confirmations
+                or (c.state == "accelerating" and tb >= self.min_onset
+                    and c.confidence >= self.accel_confidence and growth >= ACCEL_MIN_GROWTH)):
+            self._classification = c
+            self._set_decision(True, "flowing", c.state, tb, onset, c.confidence,
+                               f"t={tb:.6g}: stop, decisively flowing ({c.state}); {c.explain()}")
+            return True
+        return False
 
     def _set_decision(self, stop, reason, state, t, start, conf, msg) -> None:
         self._decision = MonitorDecision(bool(stop), reason, state, float(t),
@@ -374,6 +412,7 @@ class SteadyStateMonitor:
             "below_since": self._below_since, "arrested": self._arrested,
             "next_check": self._next_check, "n_checks": self._n_checks,
             "steady_streak": self._steady_streak,
+            "flowing_streak": self._flowing_streak,
             "decision_json": json.dumps(asdict(self._decision)),
             "classification_json": "" if self._classification is None else json.dumps(
                 {"state": self._classification.state, "onset": self._classification.onset,
@@ -409,6 +448,7 @@ class SteadyStateMonitor:
         m._next_check = float(scalar(d["next_check"]))
         m._n_checks = int(scalar(d["n_checks"]))
         m._steady_streak = int(scalar(d["steady_streak"]))
+        m._flowing_streak = int(scalar(d["flowing_streak"])) if "flowing_streak" in d else 0
         m._decision = MonitorDecision(**json.loads(str(scalar(d["decision_json"]))))
         cj = str(scalar(d["classification_json"]))
         if cj:
