@@ -10,8 +10,8 @@
 * **Corrupt outputs.**  A truncated profiles.nc / summary.json of one run in a finished campaign:
   the rerun names the file, recomputes that run only and gives the same library; no other
   output is lost.
-* **Two workflows** on one results folder: the second is refused by Snakemake's lock, the first
-  finishes with the undisturbed library.
+* **Two workflows** on one results folder: the second is refused (Snakemake's incomplete-output
+  check, or with --rerun-incomplete its lock), the first finishes with the undisturbed library.
 * **Read-only or full results folder**: the workflow fails before any job, with a clear message.
 
 These run several tiny campaigns (2-4 minutes each on 2 busy cores): ``pytest -m slow``.
@@ -226,8 +226,9 @@ def _copy_campaign(src: Path, dst: Path):
     shutil.copytree(src, dst, symlinks=True, dirs_exist_ok=True)  # copy2: mtimes kept
 
 
-def _fingerprints(res: Path, skip: str):
-    """(size, mtime, sha) of every run output outside run ``skip`` and of the bases."""
+def _fingerprints(res: Path, skip: str, forced_rows: bool = False):
+    """(mtime, sha) of every run output outside run ``skip`` and of the bases; with
+    ``forced_rows`` (``--forcerun row`` rewrites every row.json) only the sha of row.json."""
     import hashlib
 
     out = {}
@@ -238,7 +239,8 @@ def _fingerprints(res: Path, skip: str):
             continue
         if p.name.endswith(".log"):
             continue
-        out[rel] = (p.stat().st_mtime_ns, hashlib.sha256(p.read_bytes()).hexdigest())
+        sha = hashlib.sha256(p.read_bytes()).hexdigest()
+        out[rel] = sha if forced_rows and p.name == "row.json" else (p.stat().st_mtime_ns, sha)
     return out
 
 
@@ -285,7 +287,7 @@ def test_corrupt_output_not_read_by_the_row_rule(reference, tmp_path, name):
     data = bytearray(target.read_bytes())
     data[len(data) // 2] ^= 0x55  # one byte changed, same size
     target.write_bytes(bytes(data))
-    before = _fingerprints(tmp_path / RESULTS, rel)
+    before = _fingerprints(tmp_path / RESULTS, rel, forced_rows=True)
     first = snakemake(tmp_path, "--cores", "2", "--forcerun", "row")
     row_log = (tmp_path / RESULTS / rel / "row.log").read_text()
     print(f"\n{name} one byte changed -> {row_log.strip()}")
@@ -295,13 +297,18 @@ def test_corrupt_output_not_read_by_the_row_rule(reference, tmp_path, name):
     ran = re.findall(r"rule simulate:\n(?:.*\n)*?\s+wildcards: kind=(\w+), law=(\w+), "
                      r"point=(\S+)", second.stdout + second.stderr)
     assert [f"{k}/{law}/{pt}" for k, law, pt in ran] == [rel], ran
-    assert _fingerprints(tmp_path / RESULTS, rel) == before
+    # the other runs' outputs untouched; their forced rows rewritten with the same content
+    assert _fingerprints(tmp_path / RESULTS, rel, forced_rows=True) == before
     lib, _ = library_summary(tmp_path)
     assert lib.attrs["content_hash"] == ref_lib.attrs["content_hash"]
 
 
 @pytest.mark.slow
 def test_second_workflow_on_the_same_folder_is_refused(reference, tmp_path):
+    """A second Snakemake on the folder of a running campaign is refused: started plainly it
+    stops at the running jobs' incomplete outputs (or the lock); started as the profiles do,
+    with --rerun-incomplete (which skips that check), Snakemake's lock refuses it.  The first
+    workflow is not disturbed and ends with the undisturbed library."""
     ref_work, ref_lib = reference
     first = start(tmp_path, "--cores", "2", log=tmp_path / "first.log")
     try:
@@ -310,13 +317,18 @@ def test_second_workflow_on_the_same_folder_is_refused(reference, tmp_path):
                 and not _simulating(tmp_path):
             time.sleep(0.05)
         assert first.poll() is None, "the first workflow ended too soon"
-        second = snakemake(tmp_path, "--cores", "2", timeout=300)
-        out = second.stdout + second.stderr
-        print(f"\nsecond workflow: rc {second.returncode}: "
-              + " ".join(l for l in out.splitlines() if "lock" in l.lower())[:300])
-        assert second.returncode != 0
-        assert "Directory cannot be locked" in out or "LockException" in out, out[-2000:]
-        assert first.poll() is None  # the first one was not disturbed
+        for extra in ((), ("--rerun-incomplete",)):
+            second = snakemake(tmp_path, "--cores", "2", *extra, timeout=300)
+            out = second.stdout + second.stderr
+            refusal = [l for l in out.splitlines()
+                       if "lock" in l.lower() or "IncompleteFilesException" in l]
+            print(f"\nsecond workflow {' '.join(extra) or '(plain)'}: rc {second.returncode}: "
+                  + " | ".join(refusal)[:300])
+            assert second.returncode != 0
+            locked = "Directory cannot be locked" in out or "LockException" in out
+            assert locked or (not extra and "IncompleteFilesException" in out), out[-2000:]
+            assert "rule simulate:" not in out  # it started no job
+            assert first.poll() is None  # the first one was not disturbed
         assert first.wait(timeout=900) == 0, (tmp_path / "first.log").read_text()[-3000:]
     finally:
         if first.poll() is None:
