@@ -300,7 +300,12 @@ def mutated_configs(draw):
                 (("campaigns", "segregation", "sigma"), [1e-300, 0.5, 0.7]),
                 (("campaigns", "segregation", "Lx"), 1e4),
                 (("library", "n_bootstrap"), 10**9), (("numerics", "threads"), 10**6)]))
-            parent = _get(cfg, key[:-1])
+            try:
+                parent = _get(cfg, key[:-1])
+            except (KeyError, IndexError, TypeError):
+                continue  # an earlier change removed or replaced that part of the configuration
+            if not isinstance(parent, dict):
+                continue
             parent[key[-1]] = value
             path = key
         names += [str(x) for x in path if isinstance(x, str)]
