@@ -170,7 +170,9 @@ def prepare(H: float, seed: int, fresh: bool, prep_min_time: float, prep_max_tim
     from granflow.engine.species import ContactSpecies
 
     WORK.mkdir(parents=True, exist_ok=True)
-    path = WORK / f"prepared_H{H:g}_seed{seed}.npz"
+    # (another box than the benchmark's 20 x 10, e.g. bench_engine_scaling.py: its own files)
+    box = "" if (LX, LY) == (20.0, 10.0) else f"_box{LX:g}x{LY:g}"
+    path = WORK / f"prepared_H{H:g}_seed{seed}{box}.npz"
     if path.exists() and not fresh:
         with np.load(path) as d:
             state = {k: d[k] for k in d.files}
@@ -178,7 +180,7 @@ def prepare(H: float, seed: int, fresh: bool, prep_min_time: float, prep_max_tim
               f"(prepared in {float(state['prep_wall_s']):.0f} s wall; --fresh rebuilds)")
         return state
     t_start = time.perf_counter()
-    base_path = WORK / f"base_lam{LAM:g}_seed{seed}.npy"
+    base_path = WORK / f"base_lam{LAM:g}_seed{seed}{box}.npy"
     if base_path.exists() and not fresh:
         base = np.load(base_path)
     else:

@@ -7,11 +7,13 @@ quotes these records; ``tests/test_readme.py`` checks that it quotes them exactl
 
     .venv/bin/python benchmarks/time_campaign.py                        # default campaign
     .venv/bin/python benchmarks/time_campaign.py --configfile config/segregation-sweep.yaml
+    .venv/bin/python benchmarks/time_campaign.py --workdir /tmp/default-run   # keep the results
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
 import os
@@ -30,9 +32,19 @@ def main():
     ap.add_argument("--configfile", default=None)
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--no-record", action="store_true")
+    ap.add_argument("--workdir", default=None,
+                    help="run in this new (or empty) directory and keep its results")
     args = ap.parse_args()
     name = Path(args.configfile).stem if args.configfile else "config"
-    with tempfile.TemporaryDirectory(prefix="time-campaign-") as tmp:
+    if args.workdir:
+        work = Path(args.workdir).resolve()
+        if work.exists() and any(work.iterdir()):
+            raise SystemExit(f"--workdir {work} is not empty: the timing needs fresh results")
+        work.mkdir(parents=True, exist_ok=True)
+        context = contextlib.nullcontext(str(work))
+    else:
+        context = tempfile.TemporaryDirectory(prefix="time-campaign-")
+    with context as tmp:
         cmd = [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
                "--directory", tmp, "--cores", str(args.cores)]
         if args.configfile:

@@ -89,6 +89,10 @@ def test_default_campaign_covers_every_closure():
 
     text = reductions_vs_paper(cfg)
     assert "collision time t_c 0.02 (paper 0.005)" in text and "chute box 10 x 5" in text
+    # ... and they carry the measured bias of the soft species (F at 23 deg: 0.1761 vs 0.1250)
+    assert "Froude number +10 to +41 %" in text and "packing fraction -0.010" in text
+    paper = dict(cfg, species=dict(cfg["species"], t_c=0.005))
+    assert "measured bias" not in reductions_vs_paper(paper)
     # all runs share one base per (lambda, box)
     assert len({G.base_path(cfg, r) for r in runs}) == 1
 

@@ -92,10 +92,8 @@ def test_plastic_reload_below_max_overlap_is_elastic():
     sp = ContactSpecies(t_c=0.01, e=0.6, law="plastic")
     c = sp.coefficients()
     k1, k2 = c["kn_hat"], c["k2_hat"]
-    from granflow.engine.lib.kernels import _contact
+    from granflow.engine.lib.kernels import _contact_force
 
-    out = np.zeros(12)
-    hist = np.zeros(3)
     dmax = 0.0
     # load to 0.01, unload to 0.008, reload to 0.0095 and back (the force-free overlap is
     # 0.01 (1 - e^2) = 0.0064): work done around the reload loop is zero
@@ -103,9 +101,10 @@ def test_plastic_reload_below_max_overlap_is_elastic():
                            np.linspace(0.008, 0.0095, 601), np.linspace(0.0095, 0.008, 601)])
     forces = []
     for delta in path[1:]:
-        dmax = _contact(0, 0, 1, 1.0 - delta, 0.5, 0.5, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
-                        1.0, 2, k1, 0.0, 0.0, 0.0, 0.5, k2, hist, dmax, 1e-4, False, out,
-                        0.0, 0.0, 0.0)
+        zero = (0.0, 0.0, 0.0)
+        out = _contact_force(0.0, 0.0, 1.0, 1.0 - delta, 0.5, 0.5, zero, zero, zero, zero, 1.0,
+                             2, (k1, 0.0, 0.0, 0.0, 0.5, k2), zero, dmax, False, zero)
+        dmax = out[15]
         forces.append(out[11])
     forces = np.array(forces)
     seg = slice(2000 + 800, None)

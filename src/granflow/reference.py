@@ -70,3 +70,43 @@ def compare_with_paper(fits, n_sigma: float = 2.0, rel: float = 0.05) -> list[di
                          "agrees": bool(math.isfinite(v) and abs(v - ref) <= tol),
                          "status": r.state, "parameter_status": r.param_status.get(p, "")})
     return rows
+
+
+#: Measured effect of the soft species t_c = 0.02 (the embedded default's) against the paper's
+#: t_c = 0.005, everything else equal (e = 0.88, mu_c = 0.5, lambda = 1, box 10 x 5, 5-layer base,
+#: same seeds and base; granflow at commit 4b678ff, 2026-11-23).  (soft, paper) per theta at
+#: H = 10, value +- within-run sem: F, nu_c (bulk packing fraction), K, alpha; hstop brackets
+#: [arrested, flowing] in degrees per H.  This is granflow's own measurement, not the paper's.
+SOFT_SPECIES_EFFECT = {
+    "t_c": (0.02, 0.005),
+    "steady_H10": {
+        23.0: {"F": (0.1761, 0.1250), "nu_c": (0.5713, 0.5756), "K": (1.0420, 1.0510),
+               "alpha": (1.5055, 1.5737)},
+        25.0: {"F": (0.4059, 0.3675), "nu_c": (0.5572, 0.5585), "K": (1.0193, 1.0208),
+               "alpha": (1.3898, 1.4166)},
+        27.0: {"F": (0.7912, 0.6057), "nu_c": (0.5364, 0.5464), "K": (1.0053, 1.0358),
+               "alpha": (1.3357, 1.3766)},
+    },
+    "hstop_brackets": {2.0: ((28.1, 28.6), (28.6, 29.1)), 4.0: ((25.55, 26.05), (25.05, 25.55)),
+                       8.0: ((23.05, 23.55), (22.55, 23.05))},
+}
+
+
+def soft_species_note(t_c: float) -> str:
+    """What the measured :data:`SOFT_SPECIES_EFFECT` says a campaign at ``t_c`` inherits ('' when
+    ``t_c`` is the paper's or not the measured soft value)."""
+    soft, paper = SOFT_SPECIES_EFFECT["t_c"]
+    if not math.isclose(float(t_c), soft, rel_tol=1e-6):
+        return ""
+    rows = SOFT_SPECIES_EFFECT["steady_H10"]
+    dF = [100.0 * (r["F"][0] / r["F"][1] - 1.0) for r in rows.values()]
+    dnu = [r["nu_c"][0] - r["nu_c"][1] for r in rows.values()]
+    dal = [100.0 * (r["alpha"][0] / r["alpha"][1] - 1.0) for r in rows.values()]
+    shifts = [0.5 * (s[0] + s[1]) - 0.5 * (p[0] + p[1])
+              for s, p in SOFT_SPECIES_EFFECT["hstop_brackets"].values()]
+    return (f"measured bias of t_c = {soft:g} against the paper's {paper:g} (lambda = 1, H = 10, "
+            f"theta = 23-27 deg, 10 x 5 box): Froude number {min(dF):+.0f} to {max(dF):+.0f} %, "
+            f"packing fraction {min(dnu):+.3f} to {max(dnu):+.3f}, alpha {min(dal):+.0f} to "
+            f"{max(dal):+.0f} %, hstop bracket centres {min(shifts):+.2f} to {max(shifts):+.2f} deg "
+            "(granflow.reference.SOFT_SPECIES_EFFECT); larger than most stated stderrs: use the "
+            "paper's species (config/reference-lambda1.yaml) for numbers to compare with the paper")

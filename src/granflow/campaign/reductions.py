@@ -50,6 +50,12 @@ def config_differences(config: dict) -> list[str]:
                        ("gt_over_gn", "gamma_t/gamma_n")):
         if key in sp and not _same(sp[key], PAPER[key]):
             out.append(f"{label} {_fmt(sp[key])} (paper {_fmt(PAPER[key])})")
+            if key == "t_c":
+                from ..reference import soft_species_note
+
+                note = soft_species_note(sp[key])
+                if note:
+                    out.append(note)
     for key, label in (("steps_per_collision", "t_c/dt"), ("cg_width", "coarse-graining width")):
         if key in nu and not _same(nu[key], PAPER[key]):
             out.append(f"{label} {_fmt(nu[key])} (paper {_fmt(PAPER[key])})")

@@ -22,6 +22,7 @@ import math
 import os
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from ..provenance import atomic_write_bytes
@@ -45,8 +46,11 @@ class ParticleSystem:
     """A set of spheres in a periodic-x,y box with open z, gravity ``gvec`` and contact laws."""
 
     _ARRAYS = ("pos", "vel", "omega", "force", "torque", "radius", "mass", "inertia", "ptype",
-               "fixed", "pi", "pj", "hist_t", "hist_dmax", "pair_out", "pos_ref", "wall_hist",
-               "wall_dmax", "wall_out", "gvec")
+               "fixed", "pi", "pj", "hist_t", "hist_dmax", "pos_ref", "wall_hist", "wall_dmax",
+               "wall_rows", "wall_state", "gvec")
+    #: Results of the last force evaluation per pair (see ``kernels.pair_pass``), checkpointed
+    #: as ``pair_<name>``; the other per-pair arrays are derived from the pair list.
+    _PAIR_SAVED = ("crow", "cext", "ridx", "prel", "pstate")
 
     def __init__(self, Lx, Ly, interactions: InteractionTable, gvec=(0.0, 0.0, -1.0), dt=None,
                  skin=0.2, use_wall=False, wall_type=None, steps_per_collision=50):
@@ -89,13 +93,18 @@ class ParticleSystem:
         self.fixed = np.asarray(fixed, dtype=bool)
         self.wall_hist = np.zeros((n, 3))
         self.wall_dmax = np.zeros(n)
-        self.wall_out = np.zeros((n, K.NOUT))
-        self.pi = np.zeros(0, np.int64)
-        self.pj = np.zeros(0, np.int64)
+        self.wall_rows = np.zeros((n, K.NROW))
+        self.wall_state = np.zeros(n, np.uint8)
+        self.pi = np.zeros(0, np.uint32)
+        self.pj = np.zeros(0, np.uint32)
         self.hist_t = np.zeros((0, 3))
         self.hist_dmax = np.zeros(0)
-        self.pair_out = np.zeros((0, K.NOUT))
         self.pos_ref = self.pos.copy()
+        self._pair = None
+        self._coef_src = None
+        self._slots_override = None
+        # per-thread work rows of the vectorised contact kernel
+        self._work = np.zeros((numba.config.NUMBA_NUM_THREADS, K.WORK_SIZE))
 
     def set_particles(self, pos, diameter, density=6.0 / math.pi, ptype=0, fixed=False):
         """Replace all particles. Mobile particles must come before fixed ones."""
@@ -130,17 +139,45 @@ class ParticleSystem:
     def initialize(self):
         """Build the neighbour list and the forces of the current state (no history update)."""
         self._cache_inverse()
-        self.pi, self.pj = hgrid_pairs(self.pos, self.radius, self.fixed, self.Lx, self.Ly,
-                                       self.skin, self._level_of, self._level_cell)
-        self.hist_t = np.zeros((len(self.pi), 3))
-        self.hist_dmax = np.zeros(len(self.pi))
-        self.pair_out = np.zeros((len(self.pi), K.NOUT))
+        self.pi, self.pj, self.hist_t, self.hist_dmax = K.rebuild_pairs(
+            self.pos, self.radius, self.fixed, self.Lx, self.Ly, self.skin, self._level_of,
+            self._level_cell, np.zeros(0, np.uint32), np.zeros(0, np.uint32), np.zeros((0, 3)),
+            np.zeros(0))
+        self._index_pairs()
         self.pos_ref = self.pos.copy()
-        self.e_elastic, self.max_overlap, _ = K.compute_forces(
-            self.pos, self.vel, self.omega, self.vel, self.omega, self.radius, self._inv_mass, self.mass, self.ptype,
-            self.fixed, self.Lx, self.Ly, self.gvec, self.pi, self.pj, self.hist_t,
-            self.hist_dmax, self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax,
-            *self.tables, self.dt, False, self.pair_out, self.wall_out, self.force, self.torque)
+        self.e_elastic, self.max_overlap = K.compute_forces(
+            self.pos, self.vel, self.omega, self.force, self.torque, self.radius, self._inv_mass,
+            self.mass, self._inv_inertia, self.ptype, self.Lx, self.Ly, self.gvec, self.pi,
+            self.pj, self.hist_t, self.hist_dmax, *self._pair, self.use_wall,
+            self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows, self.wall_state,
+            *self._coefficients(), self._work, self.dt, self.pos_ref, self.skin, self._slots())
+
+    def _index_pairs(self, saved: dict | None = None):
+        """Per-pair arrays derived from the pair list (pull index, reduced masses, spring flags)
+        and those the pair pass writes (``saved``: restored from a checkpoint)."""
+        arrays = dict(zip(K.PAIR_ARRAYS, K.pair_index(self.pi, self.pj, self.hist_t,
+                                                      self._inv_mass, self.n)))
+        for name, value in (saved or {}).items():
+            arrays[name] = value
+        self._pair = tuple(arrays[name] for name in K.PAIR_ARRAYS)
+
+    def _slots(self) -> int:
+        """Runs of pair blocks of the pair pass: the number of threads (``_slots_override``
+        for tests: more runs than threads exercise the multi-thread summation on one core)."""
+        return int(self._slots_override or numba.get_num_threads())
+
+    def _coefficients(self):
+        """(law table, packed coefficient table, all-linear flag) of ``self.tables`` (which
+        may be replaced between steps)."""
+        if self._coef_src is not self.tables:
+            self._coef = K.coefficient_table(*self.tables)
+            self._coef_src = self.tables
+        return self._coef
+
+    def _pair_array(self, name):
+        if self._pair is None:
+            self._index_pairs()
+        return self._pair[K.PAIR_ARRAYS.index(name)]
 
     def _cache_inverse(self):
         self._inv_mass = self.inv_mass
@@ -161,14 +198,18 @@ class ParticleSystem:
             return
         if not hasattr(self, "_inv_mass"):
             self._cache_inverse()
+        if self._pair is None:
+            self._index_pairs()
         max_allowed = MAX_OVERLAP_FRACTION * 2.0 * float(self.radius.min(initial=0.5))
-        (self.pi, self.pj, self.hist_t, self.hist_dmax, self.pair_out, e_el, max_ov, e_rel, done,
+        (self.pi, self.pj, self.hist_t, self.hist_dmax, self._pair, e_el, max_ov, e_rel, done,
          nreb, status) = K.advance(
             int(nsteps), self.pos, self.vel, self.omega, self.force, self.torque, self.radius,
             self._inv_mass, self.mass, self._inv_inertia, self.ptype, self.fixed, self.Lx,
-            self.Ly, self.gvec, self.pi, self.pj, self.hist_t, self.hist_dmax, self.pos_ref,
-            self.skin, self._level_of, self._level_cell, self.use_wall, self.wall_type, self.wall_hist,
-            self.wall_dmax, *self.tables, self.dt, self.pair_out, self.wall_out, max_allowed)
+            self.Ly, self.gvec, self.pi, self.pj, self.hist_t, self.hist_dmax,
+            *self._pair, self.pos_ref, self.skin, self._level_of, self._level_cell,
+            self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows,
+            self.wall_state, *self._coefficients(), self._work, self.dt, max_allowed,
+            self._slots())
         self.step_count += int(done)
         self.time = self.step_count * self.dt
         self.n_rebuilds += int(nreb)
@@ -208,14 +249,31 @@ class ParticleSystem:
 
         Flow-base contacts have the flow particle as i; flat-wall contacts have j = -1.
         """
-        ci, cj, f, rij, cp = K.contact_list(self.pos, self.radius, self.Lx, self.Ly, self.pi,
-                                            self.pj, self.pair_out, self.use_wall, self.wall_out)
+        ci, cj, f, rij, cp = K.contact_list(
+            self.pos, self.radius, self.Lx, self.Ly, self.pi, self.pj, self._pair_array("crow"),
+            self._pair_array("cext"), self._pair_array("ridx"), self._pair_array("pstate"),
+            self.use_wall, self.wall_rows, self.wall_state)
         return {"contact_i": ci, "contact_j": cj, "contact_force": f, "contact_rij": rij,
                 "contact_point": cp}
+
+    @property
+    def pair_out(self):
+        """Per-pair table of the last force evaluation, (P, 13): force on i (0:3), torque on i
+        (3:6), torque on j (6:9), elastic energy (9), overlap (10), normal force (11), spring
+        energy released by a contact that opened (12); zeros for pairs without contact."""
+        return K.legacy_pair_rows(*(self._pair_array(k) for k in self._PAIR_SAVED))
+
+    @property
+    def wall_out(self):
+        """Per-particle flat-wall table of the last force evaluation, same columns as
+        :attr:`pair_out`."""
+        return K.legacy_wall_rows(self.wall_rows, self.wall_state)
 
     # ---------------------------------------------------------------- checkpoints
     def state_dict(self) -> dict:
         state = {name: getattr(self, name) for name in self._ARRAYS}
+        for name in self._PAIR_SAVED:
+            state["pair_" + name] = self._pair_array(name)
         meta = {
             "Lx": self.Lx, "Ly": self.Ly, "dt": self.dt, "skin": self.skin,
             "use_wall": self.use_wall, "wall_type": self.wall_type, "time": self.time,
@@ -233,11 +291,13 @@ class ParticleSystem:
         sys_ = cls(meta["Lx"], meta["Ly"], InteractionTable.from_json_dict(meta["interactions"]),
                    gvec=np.asarray(state["gvec"]), dt=meta["dt"], skin=meta["skin"],
                    use_wall=meta["use_wall"], wall_type=meta["wall_type"])
+        state = _upgrade_state(dict(state))
         for name in cls._ARRAYS:
             setattr(sys_, name, np.array(state[name]))
         for key in ("time", "step_count", "n_rebuilds", "e_elastic", "max_overlap", "e_released"):
             setattr(sys_, key, meta[key])
         sys_._cache_inverse()
+        sys_._index_pairs({name: np.array(state["pair_" + name]) for name in cls._PAIR_SAVED})
         return sys_
 
     def save(self, path, extra: dict | None = None):
@@ -262,3 +322,23 @@ class ParticleSystem:
             raise ValueError(f"state file {os.fspath(path)!r} is unreadable or truncated: {exc}") from exc
         extra = {k[len("extra__"):]: v for k, v in state.items() if k.startswith("extra__")}
         return cls.from_state_dict(state), extra
+
+
+def _upgrade_state(state: dict) -> dict:
+    """A state written before issue 15 (int64 pairs, 13-column ``pair_out``/``wall_out``) in
+    the present layout; it resumes, but not bit for bit with the old engine."""
+    if "pair_out" in state and "pair_pstate" not in state:
+        out = np.asarray(state.pop("pair_out"))
+        live = out[:, 10] != 0.0
+        state["pair_crow"] = np.ascontiguousarray(out[:, :9])
+        state["pair_cext"] = np.ascontiguousarray(out[:, 9:12])
+        state["pair_ridx"] = np.arange(len(out), dtype=np.uint32)
+        state["pair_prel"] = np.where(live, 0.0, out[:, 12])
+        state["pair_pstate"] = np.where(live, K.CONTACT, K.NO_CONTACT).astype(np.uint8)
+        wall = np.asarray(state.pop("wall_out"))
+        state["wall_rows"] = np.ascontiguousarray(wall[:, :K.NROW])
+        state["wall_state"] = np.where(wall[:, 10] != 0.0, K.CONTACT,
+                                       K.NO_CONTACT).astype(np.uint8)
+    for name in ("pi", "pj"):
+        state[name] = np.asarray(state[name]).astype(np.uint32)
+    return state

@@ -30,14 +30,16 @@ directions with fewer than 3 cells on a level are handled by de-duplicating the 
 both sides with an ``i < j`` filter; cross-level search: a box wider than the level visits each
 cell once).  Cell searches are widened by a relative 1e-9 margin so that floating-point rounding
 at cell faces can never lose a pair: the result is exact, the distance test is the one of
-``neighbour_pairs`` evaluated on the same operands (bitwise the same decision).
+``neighbour_pairs`` (the same squared distance; the minimum image by comparison with L/2, see
+:func:`_accept`).
 
-Output: ``(pi, pj)`` int64, all pairs ``i < j``, not both fixed, with minimum-image distance
-``< r_i + r_j + skin``, sorted by ``(i, j)`` — exactly the arrays of ``neighbour_pairs``.  The
-pairs are found per particle in parallel (``prange`` over the particles in cell order, on
-cell-ordered copies of the coordinates; count pass, prefix sum, fill pass), then transposed to
-rows of the lower index with a serial counting sort and each row sorted (``prange``), so the
-result does not depend on the number of threads.  With a single level this is the classical
+Output: ``(pi, pj)`` int64 (uint32 from :func:`hgrid_pairs_u32`), all pairs ``i < j``, not both
+fixed, with minimum-image distance ``< r_i + r_j + skin``, sorted by ``(i, j)`` — exactly the
+arrays of ``neighbour_pairs``.  The pairs are found per particle in parallel (``prange`` over
+the particles in cell order, on cell-ordered copies of the coordinates) in one pass that keeps
+up to ``cap`` partners per particle (a second pass, with the exact counts, only if a particle
+found more), then transposed to rows of the lower index with a serial counting sort and each
+row sorted (``prange``), so the result does not depend on the number of threads.  With a single level this is the classical
 linked-cell method with a half shell; it is itself ~1.3-1.8x faster than ``neighbour_pairs``
 (full shell with a ``j > i`` filter), see ``benchmarks/bench_hgrid.py``.
 
@@ -68,6 +70,15 @@ def _min_image(dx, L):
     # identical to kernels._min_image (kept local to avoid a circular import once kernels uses
     # this module)
     return dx - L * np.rint(dx / L)
+
+
+@njit(cache=True, inline="always")
+def _wrap_select(dx, L):
+    """Minimum image of a difference of two coordinates in [0, L), by two selects."""
+    a = dx - L
+    dx = a if dx > 0.5 * L else dx
+    b = dx + L
+    return b if dx < -0.5 * L else dx
 
 
 # --------------------------------------------------------------------------------------------
@@ -284,33 +295,29 @@ def _build_hgrid(pos, radius, Lx, Ly, skin, level_of, level_cell):
 # --------------------------------------------------------------------------------------------
 # contact detection phase
 # --------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _accept(xi, yi, zi, ri, xj, yj, zj, rj, Lx, Ly, skin):
-    """The pair test of ``kernels._neighbour_rows`` (same operands, same operation order).
+    """The pair test of ``kernels._neighbour_rows``, branch-free: squared minimum-image distance
+    (summed as dx^2 + dy^2 + dz^2) below (r_i + r_j + skin)^2.
 
-    It is symmetric in (i, j) bit for bit (round-half-even rint is odd, a - b = -(b - a), +
-    commutes).  The early exits are exact: rounding is monotone, so fl(fl(dx^2 + dy^2) + dz^2)
-    is at least dz^2 and at least fl(dx^2 + dz^2).
+    The minimum image is taken by comparison with L/2 (:func:`_wrap_select`), which equals
+    ``kernels._min_image`` (x - L rint(x / L)) for |x| < L except where x / L rounds to exactly
+    1/2 from above, i.e. never for a difference of two coordinates in [0, L) that lies above
+    L/2 by at least one unit in the last place.  The test is symmetric in (i, j) bit for bit.
     """
-    dz = zi - zj
     rc = ri + rj + skin
-    rc2 = rc * rc
-    dz2 = dz * dz
-    if dz2 >= rc2:
-        return False
-    dx = _min_image(xi - xj, Lx)
-    dx2 = dx * dx
-    if dx2 + dz2 >= rc2:
-        return False
-    dy = _min_image(yi - yj, Ly)
-    return dx2 + dy * dy + dz2 < rc2
+    dx = _wrap_select(xi - xj, Lx)
+    dy = _wrap_select(yi - yj, Ly)
+    dz = zi - zj
+    return dx * dx + dy * dy + dz * dz < rc * rc
 
 
 @njit(cache=True)
 def _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base,
                    rmax, count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
-                   found_start, out_q, fill):
-    """Count (fill=False) or write (fill=True) the partners q found by the particle in slot sp.
+                   out0, lim, out_q):
+    """Count the partners q found by the particle in slot sp and write the first ``lim`` of
+    them to ``out_q[out0:]``.
 
     Same-level partners through the half shell, finer-level partners through the cross-level
     box (Eq. 25-26); every pair is found by exactly one of its particles, and whichever finds
@@ -331,7 +338,6 @@ def _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx,
     pr = rs[sp]
     fp = fs[sp]
     cnt = 0
-    out0 = found_start[p] if fill else 0
     # ---- step 1: linked cells on the level of insertion (half shell)
     for k in range(noff[lv]):
         zz = cz + offs[lv, k, 2]
@@ -354,20 +360,18 @@ def _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx,
             # own cell (or a self-inverse offset): keep each pair once, from the lower index
             for s in range(s0, s1):
                 q = cell_particles[s]
-                if q <= p or (fp and fs[s]):
-                    continue
-                if _accept(px, py, pz, pr, xs[s], ys[s], zs[s], rs[s], Lx, Ly, skin):
-                    if fill:
-                        out_q[out0 + cnt] = q
-                    cnt += 1
+                ok = (q > p) & ~(fp & fs[s]) & _accept(px, py, pz, pr, xs[s], ys[s], zs[s],
+                                                        rs[s], Lx, Ly, skin)
+                if cnt < lim:
+                    out_q[out0 + cnt] = q
+                cnt += np.int64(ok)
         else:
             for s in range(s0, s1):
-                if fp and fs[s]:
-                    continue
-                if _accept(px, py, pz, pr, xs[s], ys[s], zs[s], rs[s], Lx, Ly, skin):
-                    if fill:
-                        out_q[out0 + cnt] = cell_particles[s]
-                    cnt += 1
+                ok = ~(fp & fs[s]) & _accept(px, py, pz, pr, xs[s], ys[s], zs[s], rs[s], Lx,
+                                             Ly, skin)
+                if cnt < lim:
+                    out_q[out0 + cnt] = cell_particles[s]
+                cnt += np.int64(ok)
     # ---- step 2: cross-level search on the finer levels (Eq. 25-26)
     xp = px - Lx * np.floor(px / Lx)
     yp = py - Ly * np.floor(py / Ly)
@@ -423,17 +427,21 @@ def _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx,
                             continue
                         if _accept(px, py, pz, pr, xs[s], ys[s], zs[s], rs[s], Lx, Ly,
                                    skin):
-                            if fill:
+                            if cnt < lim:
                                 out_q[out0 + cnt] = cell_particles[s]
                             cnt += 1
     return cnt
 
 
-@njit(cache=True)  # serial: cached parallel callees of cached callers segfaulted (numba cache)
+# Parallel kernels and every cached caller of them are parallel=True: a cached *serial* caller
+# of a cached parallel callee segfaulted when loaded from numba's cache (numba issue 8578).
+@njit(cache=True, parallel=True)
 def _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base, rmax,
                 count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
-                found_count, found_start, out_q, fill):
-    """Count (fill=False) or write (fill=True) the partners found by every particle, in parallel.
+                found_count, found_start, out_q, cap):
+    """Find the partners of every particle: their number into ``found_count`` and the partners
+    into ``out_q``, at ``p * cap`` (at most ``cap`` of them; ``cap > 0``) or at
+    ``found_start[p]`` (all of them; ``cap = 0``, counts known).
 
     ``xs, ys, zs, rs, fs, ls`` are x, y, z, radius, fixed and level in cell order (copies, so
     that the candidates of a cell are contiguous in memory); particles are processed in cell
@@ -443,11 +451,17 @@ def _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, c
     n = xs.shape[0]
     for su in prange(n):
         sp = np.int64(su)  # prange may hand out unsigned indices
-        cnt = _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy,
-                             csz, base, rmax, count, zmin, margin, offs, filts, noff, cell_of,
-                             start, cell_particles, found_start, out_q, fill)
-        if not fill:
-            found_count[cell_particles[sp]] = cnt
+        p = cell_particles[sp]
+        if cap > 0:
+            out0 = p * cap
+            lim = cap
+        else:
+            out0 = found_start[p]
+            lim = found_count[p]
+        found_count[p] = _particle_rows(sp, xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz,
+                                        csx, csy, csz, base, rmax, count, zmin, margin, offs,
+                                        filts, noff, cell_of, start, cell_particles, out0, lim,
+                                        out_q)
 
 
 @njit(cache=True)
@@ -462,7 +476,7 @@ def _gather(pos, radius, fixed, level_of, cell_particles, xs, ys, zs, rs, fs, ls
         ls[su] = level_of[i]
 
 
-@njit(cache=True)  # serial, see above
+@njit(cache=True, parallel=True)
 def _sort_rows(row_start, pj):
     """Sort every row of ``pj`` in place (Shell sort, Ciura gaps; plain insertion sort for the
     short rows of a packing)."""
@@ -484,15 +498,10 @@ def _sort_rows(row_start, pj):
                 pj[a + w] = v
 
 
-@njit(cache=True)
-def hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell):
-    """All pairs i < j (not both fixed) closer than r_i + r_j + skin, sorted by (i, j).
-
-    ``level_of`` (int64, per particle) and ``level_cell`` (cell size per level, increasing) come
-    from :func:`make_levels`; a level's cell is enlarged if it is below ``2 r_max + skin`` of its
-    particles, so any assignment is exact (the efficiency needs levels ordered by size).  Callable
-    from other njit kernels.
-    """
+@njit(cache=True, parallel=True)  # parallel callees (see _found_rows)
+def hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, cap):
+    """:func:`hgrid_pairs` with uint32 indices, in one search pass when no particle finds more
+    than ``cap`` partners (else a second pass with the exact counts)."""
     n = pos.shape[0]
     nlev = level_cell.shape[0]
     (ncx, ncy, ncz, csx, csy, csz, base, rmax, count, zmin, zmax, cell_of, start,
@@ -516,30 +525,37 @@ def hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell):
     _gather(pos, radius, fixed, level_of, cell_particles, xs, ys, zs, rs, fs, ls)
     found_count = np.zeros(n, dtype=np.int64)
     found_start = np.zeros(n + 1, dtype=np.int64)
-    dummy = np.empty(0, dtype=np.int64)
+    cap = max(cap, 1)
+    out_q = np.empty(n * cap, dtype=np.uint32)
     _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base, rmax,
                 count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
-                found_count, found_start, dummy, False)
+                found_count, found_start, out_q, cap)
+    overflow = False
     for p in range(n):
         found_start[p + 1] = found_start[p] + found_count[p]
+        if found_count[p] > cap:
+            overflow = True
     npair = found_start[n]
-    out_q = np.empty(npair, dtype=np.int64)
-    _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base, rmax,
-                count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
-                found_count, found_start, out_q, True)
+    if overflow:  # second pass, every partner at its exact place
+        out_q = np.empty(npair, dtype=np.uint32)
+        _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base,
+                    rmax, count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
+                    found_count, found_start, out_q, 0)
     # transpose to rows of the lower index (counting sort, serial: deterministic)
     row_start = np.zeros(n + 1, dtype=np.int64)
     for p in range(n):
-        for s in range(found_start[p], found_start[p + 1]):
-            q = out_q[s]
+        s0 = found_start[p] if overflow else p * cap
+        for s in range(s0, s0 + found_count[p]):
+            q = np.int64(out_q[s])
             row_start[(p if p < q else q) + 1] += 1
     for i in range(n):
         row_start[i + 1] += row_start[i]
     fillp = row_start[:-1].copy()
-    pj = np.empty(npair, dtype=np.int64)
+    pj = np.empty(npair, dtype=np.uint32)
     for p in range(n):
-        for s in range(found_start[p], found_start[p + 1]):
-            q = out_q[s]
+        s0 = found_start[p] if overflow else p * cap
+        for s in range(s0, s0 + found_count[p]):
+            q = np.int64(out_q[s])
             if p < q:
                 pj[fillp[p]] = q
                 fillp[p] += 1
@@ -547,10 +563,34 @@ def hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell):
                 pj[fillp[q]] = p
                 fillp[q] += 1
     _sort_rows(row_start, pj)
-    pi = np.empty(npair, dtype=np.int64)
+    pi = np.empty(npair, dtype=np.uint32)
     for i in range(n):
         for s in range(row_start[i], row_start[i + 1]):
             pi[s] = i
+    return pi, pj
+
+
+#: Partners per particle that the single search pass of :func:`hgrid_pairs` makes room for
+#: (a dense monodisperse packing with skin 0.2 has ~4 on average, ~12 at most).
+DEFAULT_CAPACITY = 24
+
+
+@njit(cache=True, parallel=True)  # parallel callees (see _found_rows)
+def hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell):
+    """All pairs i < j (not both fixed) closer than r_i + r_j + skin, sorted by (i, j).
+
+    ``level_of`` (int64, per particle) and ``level_cell`` (cell size per level, increasing) come
+    from :func:`make_levels`; a level's cell is enlarged if it is below ``2 r_max + skin`` of its
+    particles, so any assignment is exact (the efficiency needs levels ordered by size).  Callable
+    from other njit kernels.
+    """
+    pi32, pj32 = hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell,
+                                 DEFAULT_CAPACITY)
+    pi = np.empty(pi32.shape[0], dtype=np.int64)
+    pj = np.empty(pi32.shape[0], dtype=np.int64)
+    for p in prange(pi32.shape[0]):
+        pi[p] = pi32[p]
+        pj[p] = pj32[p]
     return pi, pj
 
 

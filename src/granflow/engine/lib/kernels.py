@@ -16,24 +16,70 @@ laws of Thornton et al. (T-eq. 4-5).  Stiffness and damping are stored *per unit
 unequal masses and flow-base pairs (m_ij = m_i), has the collision time and restitution of its
 species (physics.md §1).
 
-All kernels are small pure functions on arrays.  Pair loops write into per-pair arrays in
-parallel; per-particle sums are done serially in pair order, so results are bitwise identical for
-any number of numba threads.
+Layout of a time step (issue 15: throughput, and the same numbers for any thread count).
+:func:`advance` runs, per step, two parallel passes and a few serial scalar reductions:
+
+1. **pair pass** (:func:`pair_pass`) over the *near list*: the listed pairs that were within a
+   quarter of the Verlet skin of touching when it was built (:func:`near_pass`; rebuilt after
+   an eighth of the skin of displacement; in a dense flow with skin 0.2 it holds ~65 % of the
+   listed pairs).  Per block of PAIR_BLOCK near pairs: a vectorised scan finds the touching
+   pairs, a branch-free compaction lists them (and those whose contact just opened: a one-byte
+   spring flag per pair, so non-touching pairs read no history), and the contact law runs over
+   the touching pairs only — for linear-law systems in SIMD form over chunks gathered into a
+   per-thread work row (:func:`_linear_maths`: same operations, same order as the scalar
+   :func:`_contact_force`, bitwise the same results), otherwise inlined scalar code.  Each
+   contact writes one compact row (force, torque on i, torque on j; energy, overlap, normal
+   force).  The blocks are split into one run per thread; the first run adds its contacts to
+   the forces as it goes, the other runs' rows are added after it (:func:`push_rows`), again in
+   pair order.  So every force is summed in pair order, exactly as a serial loop over the pairs
+   would, for any number of threads.
+2. **particle pass** (:func:`particle_pass`, parallel over fixed blocks of particles): the
+   flat-wall contact, the closing half kick of this step and — fused — the opening half kick,
+   drift, predicted velocity, force reset to gravity, wall contact and Verlet-skin
+   displacements of the next step.  Per-block maxima (overlap, displacement) and partial sums
+   (released spring energy) are combined serially in block order: independent of the threads.
+
+The neighbour list is rebuilt (:func:`rebuild_pairs`: hierarchical grid, one search pass) when
+a particle has moved more than skin/2.  Pairs are unsigned 32-bit indices sorted by (i, j), with
+the reduced mass of every pair.  Touching pairs are always in both lists, so the numbers do not
+depend on when the lists are rebuilt (nor on the skin).
+
+Hot loops use unsigned indices (numba adds negative-index handling to signed ones) and
+``error_model="numpy"`` (no zero-division checks: a zero distance gives NaN, which the
+non-finite guard reports).  No fast-math: the results stay bitwise reproducible across machines.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
 
-from .hgrid import hgrid_pairs
+from .hgrid import DEFAULT_CAPACITY, hgrid_pairs_u32
 
 LAW_LINEAR = 0
 LAW_HERTZ = 1
 LAW_PLASTIC = 2
-#: Columns of the per-pair output rows: f (0:3), torque on i (3:6), torque on j (6:9), elastic
-#: energy (9), overlap (10), normal force (11), tangential spring energy released on opening (12).
+#: Columns of the per-particle flat-wall rows: f (0:3), torque (3:6), (6:9 unused), elastic
+#: energy (9; for a contact that opened in the step: the spring energy released), overlap (10),
+#: normal force (11).
+NROW = 12
+#: Columns of the legacy per-pair output (``ParticleSystem.pair_out``): the row plus the released
+#: spring energy (12).
 NOUT = 13
+#: Pair / wall state bytes: no contact, contact (accumulated), contact opened in this step
+#: (spring energy released), touching with zero overlap in floating point (not accumulated).
+NO_CONTACT = 0
+CONTACT = 1
+OPENED = 2
+GRAZING = 3
+#: Particles per block of the particle pass (blocks fix the order of the per-block reductions).
+PARTICLE_BLOCK = 256
+#: Near pairs per block of the pair pass (blocks fix the order of its per-block sums).
+PAIR_BLOCK = 512
+#: Marks the step API of issue 15 (used by benchmarks/bench_engine_profile.py).
+STEP_API = 1
+RELEASE_FRACTION = 0.5
 
 
 @njit(cache=True, inline="always")
@@ -41,26 +87,52 @@ def _min_image(dx, L):
     return dx - L * np.rint(dx / L)
 
 
+@njit(cache=True, inline="always")
+def _wrap_image(dx, L, half_L):
+    """Minimum image of a difference of two wrapped coordinates (|dx| < L): the same value as
+    :func:`_min_image` except when |dx| / L rounds to exactly 1/2 (never a touching pair)."""
+    if dx > half_L:
+        return dx - L
+    if dx < -half_L:
+        return dx + L
+    return dx
+
+
+@njit(cache=True, inline="always")
+def _wrap_select(dx, L, half_L):
+    """:func:`_wrap_image` as two selects (vectorisable), the same value."""
+    a = dx - L
+    dx = a if dx > half_L else dx
+    b = dx + L
+    return b if dx < -half_L else dx
+
+
 # --------------------------------------------------------------------------------------------
-# contact force of one pair (the physics); used by the pair loop and the flat-wall loop
+# contact law of one touching pair (the physics); inlined into the pair and the wall loops
 # --------------------------------------------------------------------------------------------
-@njit(cache=True)
-def _contact(
-    nx, ny, nz, r, ri, rj, vix, viy, viz, vjx, vjy, vjz,
-    wix, wiy, wiz, wjx, wjy, wjz, m_ij, law, kn_hat, gn_hat, kt_hat, gt_hat, mu, k2_hat,
-    hist, dmax_in, dt, update_history, out, dsx, dsy, dsz,
-):
+@njit(cache=True, inline="always")
+def _contact_force(nx, ny, nz, r, ri, rj, vi, vj, wi, wj, m_ij, law, coef, spring, dmax,
+                   update_history, ds):
     """Force on i from j for one touching pair with unit normal n (from j to i), distance r.
 
-    Velocities are the (predicted) velocities at the force time, used by the dashpots.
-    ``hist`` is the pair's tangential spring (length 3): it is rotated into the current tangent
-    plane, advanced by (dsx, dsy, dsz) = dt times the relative tangential contact velocity over
+    ``vi, vj, wi, wj`` (3-tuples) are the (predicted) velocities and angular velocities at the
+    force time, used by the dashpots; ``coef`` = (kn_hat, gn_hat, kt_hat, gt_hat, mu, k2_hat).
+    ``spring`` (3-tuple) is the pair's tangential spring: it is rotated into the current tangent
+    plane, advanced by ``ds`` = dt times the relative tangential contact velocity over
     the last step (forward Euler of Eq. 9 with the mid-step velocity, which keeps the elastic
-    tangential force conservative), truncated at the Coulomb limit, and stored when
-    ``update_history``.  Returns the new maximum overlap (plastic law) and writes into ``out``:
-    f (0:3), torque on i (3:6), torque on j (6:9), elastic energy (9), overlap (10),
-    normal force magnitude (11).
+    tangential force conservative) when ``update_history``, and truncated at the Coulomb limit.
+    ``dmax`` is the maximum overlap so far (plastic law).
+
+    Returns (f (3), torque on i (3), torque on j (3), elastic energy, overlap, normal force,
+    new spring (3), new maximum overlap).
     """
+    vix, viy, viz = vi
+    vjx, vjy, vjz = vj
+    wix, wiy, wiz = wi
+    wjx, wjy, wjz = wj
+    kn_hat, gn_hat, kt_hat, gt_hat, mu, k2_hat = coef
+    sx, sy, sz = spring
+    dsx, dsy, dsz = ds
     delta = ri + rj - r
     # branch vectors: from centre i to the contact point and from centre j to it
     bi = -(ri - 0.5 * delta)
@@ -84,8 +156,6 @@ def _contact(
     gn = m_ij * gn_hat
     kt = m_ij * kt_hat
     gt = m_ij * gt_hat
-    scale = 1.0
-    dmax = dmax_in
     if law == LAW_HERTZ:
         scale = np.sqrt(delta / (ri + rj))
         kn *= scale
@@ -115,9 +185,6 @@ def _contact(
         e_el = 0.5 * kn * delta * delta
 
     # tangential spring: rotate into the current tangent plane keeping its length (Eq. 9)
-    sx = hist[0]
-    sy = hist[1]
-    sz = hist[2]
     s2 = sx * sx + sy * sy + sz * sz
     if s2 > 0.0:
         sn = sx * nx + sy * ny + sz * nz
@@ -153,36 +220,19 @@ def _contact(
             sy = -(fty + gt * vty) / kt
             sz = -(ftz + gt * vtz) / kt
     e_el += 0.5 * kt * (sx * sx + sy * sy + sz * sz)
-    if update_history:
-        hist[0] = sx
-        hist[1] = sy
-        hist[2] = sz
 
     fx = fn * nx + ftx
     fy = fn * ny + fty
     fz = fn * nz + ftz
-    out[0] = fx
-    out[1] = fy
-    out[2] = fz
     # torque on i: b_i x f ; on j: b_j x (-f)
-    out[3] = biy * fz - biz * fy
-    out[4] = biz * fx - bix * fz
-    out[5] = bix * fy - biy * fx
-    out[6] = -(bjy * fz - bjz * fy)
-    out[7] = -(bjz * fx - bjx * fz)
-    out[8] = -(bjx * fy - bjy * fx)
-    out[9] = e_el
-    out[10] = delta
-    out[11] = fn
-    out[12] = 0.0
-    return dmax
-
-
-RELEASE_FRACTION = 0.5
+    return (fx, fy, fz,
+            biy * fz - biz * fy, biz * fx - bix * fz, bix * fy - biy * fx,
+            -(bjy * fz - bjz * fy), -(bjz * fx - bjx * fz), -(bjx * fy - bjy * fx),
+            e_el, delta, fn, sx, sy, sz, dmax)
 
 
 @njit(cache=True, inline="always")
-def _released_spring_energy(hist, nx, ny, nz, dsx, dsy, dsz, m_ij, law, kt_hat):
+def _released_spring_energy(sx, sy, sz, nx, ny, nz, dsx, dsy, dsz, m_ij, law, kt_hat):
     """Elastic energy left in a tangential spring when its contact opens.
 
     In the dissipation-free limit this energy becomes internal energy of the particles
@@ -191,9 +241,9 @@ def _released_spring_energy(hist, nx, ny, nz, dsx, dsy, dsz, m_ij, law, kt_hat):
     """
     if law == LAW_HERTZ:
         return 0.0
-    sx = hist[0] + dsx
-    sy = hist[1] + dsy
-    sz = hist[2] + dsz
+    sx = sx + dsx
+    sy = sy + dsy
+    sz = sz + dsz
     sn = sx * nx + sy * ny + sz * nz
     sx -= sn * nx
     sy -= sn * ny
@@ -201,164 +251,940 @@ def _released_spring_energy(hist, nx, ny, nz, dsx, dsy, dsz, m_ij, law, kt_hat):
     return 0.5 * m_ij * kt_hat * (sx * sx + sy * sy + sz * sz)
 
 
-@njit(cache=True, parallel=True)
-def pair_forces(
-    pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, Lx, Ly, pi, pj, hist_t, hist_dmax,
-    law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history, pair_out,
-):
-    """Contact forces of all listed pairs into ``pair_out`` (P, NOUT); untouched pairs get zeros.
-
-    ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
-    mid-step velocities of the last drift (tangential spring increment).  Contact history
-    (tangential spring, maximum overlap) is reset when a pair is not touching.
-    """
-    npair = pi.shape[0]
-    for p in prange(npair):
-        i = pi[p]
-        j = pj[p]
-        dx = _min_image(pos[i, 0] - pos[j, 0], Lx)
-        dy = _min_image(pos[i, 1] - pos[j, 1], Ly)
-        dz = pos[i, 2] - pos[j, 2]
-        r2 = dx * dx + dy * dy + dz * dz
-        rsum = radius[i] + radius[j]
-        touching = r2 < rsum * rsum
-        if not touching and not (update_history and hist_t[p, 0] * hist_t[p, 0]
-                                 + hist_t[p, 1] * hist_t[p, 1] + hist_t[p, 2] * hist_t[p, 2] > 0.0):
-            for k in range(NOUT):
-                pair_out[p, k] = 0.0
-            continue
-        r = np.sqrt(r2)
-        ti = ptype[i]
-        tj = ptype[j]
-        m_ij = 1.0 / (inv_mass[i] + inv_mass[j])
-        nx = dx / r
-        ny = dy / r
-        nz = dz / r
-        bi = -(radius[i] - 0.5 * (radius[i] + radius[j] - r))
-        bj = radius[j] - 0.5 * (radius[i] + radius[j] - r)
-        # relative contact-point displacement over the step (mid-step velocities)
-        dsx = dt * (vel_h[i, 0] - vel_h[j, 0] + bi * (omega_h[i, 1] * nz - omega_h[i, 2] * ny)
-                    - bj * (omega_h[j, 1] * nz - omega_h[j, 2] * ny))
-        dsy = dt * (vel_h[i, 1] - vel_h[j, 1] + bi * (omega_h[i, 2] * nx - omega_h[i, 0] * nz)
-                    - bj * (omega_h[j, 2] * nx - omega_h[j, 0] * nz))
-        dsz = dt * (vel_h[i, 2] - vel_h[j, 2] + bi * (omega_h[i, 0] * ny - omega_h[i, 1] * nx)
-                    - bj * (omega_h[j, 0] * ny - omega_h[j, 1] * nx))
-        if not touching:
-            # the contact opened during this step: its spring energy becomes internal energy
-            for k in range(NOUT):
-                pair_out[p, k] = 0.0
-            pair_out[p, 12] = _released_spring_energy(
-                hist_t[p], nx, ny, nz, RELEASE_FRACTION * dsx, RELEASE_FRACTION * dsy,
-                RELEASE_FRACTION * dsz, m_ij, law_tab[ti, tj], kt_tab[ti, tj])
-            hist_t[p, 0] = 0.0
-            hist_t[p, 1] = 0.0
-            hist_t[p, 2] = 0.0
-            hist_dmax[p] = 0.0
-            continue
-        dm = _contact(
-            nx, ny, nz, r, radius[i], radius[j],
-            vel[i, 0], vel[i, 1], vel[i, 2], vel[j, 0], vel[j, 1], vel[j, 2],
-            omega[i, 0], omega[i, 1], omega[i, 2], omega[j, 0], omega[j, 1], omega[j, 2],
-            m_ij, law_tab[ti, tj], kn_tab[ti, tj], gn_tab[ti, tj], kt_tab[ti, tj], gt_tab[ti, tj],
-            mu_tab[ti, tj], k2_tab[ti, tj], hist_t[p], hist_dmax[p], dt, update_history,
-            pair_out[p], dsx, dsy, dsz,
-        )
-        if update_history:
-            hist_dmax[p] = dm
+@njit(cache=True, inline="always")
+def _has_spring(sx, sy, sz):
+    # the test the contact law applies to a stored spring (s2 > 0), kept as a one-byte flag
+    return sx * sx + sy * sy + sz * sz > 0.0
 
 
-@njit(cache=True, parallel=True)
-def wall_forces(
-    pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, wall_type, wall_hist, wall_dmax,
-    law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history, wall_out,
-):
-    """Contacts of mobile particles with the flat frictional wall z = 0 (lambda = 0 base)."""
-    n = pos.shape[0]
-    for i in prange(n):
-        if inv_mass[i] == 0.0 or pos[i, 2] >= radius[i]:
-            for k in range(NOUT):
-                wall_out[i, k] = 0.0
-            if update_history and inv_mass[i] > 0.0:
-                bi = -radius[i]
-                wall_out[i, 12] = _released_spring_energy(
-                    wall_hist[i], 0.0, 0.0, 1.0, RELEASE_FRACTION * dt * (vel_h[i, 0] + bi * omega_h[i, 1]),
-                    RELEASE_FRACTION * dt * (vel_h[i, 1] - bi * omega_h[i, 0]), 0.0,
-                    1.0 / inv_mass[i], law_tab[ptype[i], wall_type], kt_tab[ptype[i], wall_type])
-            if update_history:
-                wall_hist[i, 0] = 0.0
-                wall_hist[i, 1] = 0.0
-                wall_hist[i, 2] = 0.0
-                wall_dmax[i] = 0.0
-            continue
-        ti = ptype[i]
-        # the wall acts as a sphere of zero radius at (x, y, 0) touching from below
-        r = pos[i, 2]
-        bi = -(radius[i] - 0.5 * (radius[i] - r))
-        dsx = dt * (vel_h[i, 0] + bi * omega_h[i, 1])
-        dsy = dt * (vel_h[i, 1] - bi * omega_h[i, 0])
-        dsz = dt * vel_h[i, 2]
-        dm = _contact(
-            0.0, 0.0, 1.0, r, radius[i], 0.0,
-            vel[i, 0], vel[i, 1], vel[i, 2], 0.0, 0.0, 0.0,
-            omega[i, 0], omega[i, 1], omega[i, 2], 0.0, 0.0, 0.0,
-            1.0 / inv_mass[i], law_tab[ti, wall_type], kn_tab[ti, wall_type],
-            gn_tab[ti, wall_type], kt_tab[ti, wall_type], gt_tab[ti, wall_type],
-            mu_tab[ti, wall_type], k2_tab[ti, wall_type], wall_hist[i], wall_dmax[i], dt,
-            update_history, wall_out[i], dsx, dsy, dsz,
-        )
-        if update_history:
-            wall_dmax[i] = dm
+# --------------------------------------------------------------------------------------------
+# coefficient tables
+# --------------------------------------------------------------------------------------------
+#: Columns of the per-type-pair coefficient table ``coef`` (T, T, NCOEF): stiffness and damping
+#: per unit reduced mass, friction coefficient, plastic unloading stiffness.
+C_KN, C_GN, C_KT, C_GT, C_MU, C_K2 = 0, 1, 2, 3, 4, 5
+NCOEF = 6
+
+
+def coefficient_table(law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab):
+    """The law table, the packed (T, T, NCOEF) coefficient table and whether every type pair
+    uses the linear law (then the pair pass runs the vectorised linear contact)."""
+    law = np.ascontiguousarray(law_tab, dtype=np.int64)
+    coef = np.ascontiguousarray(np.stack([kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab],
+                                         axis=-1), dtype=np.float64)
+    return law, coef, bool(np.all(law == LAW_LINEAR))
+
+
+# --------------------------------------------------------------------------------------------
+# pair pass
+# --------------------------------------------------------------------------------------------
+@njit(cache=True, inline="always", error_model="numpy")
+def _pair_contact(p, q, pos, vel, omega, vel_h, omega_h, radius, ptype, box, pi, pj, mred,
+                  hist_t, hist_dmax, hflag, law_tab, coef, dt, update_history, crow, cext, ridx,
+                  prel, pstate, touching):
+    """Contact of listed pair p (any law): a touching pair's rows at compact index q, or the
+    release of an opened one (returns the released energy; 0 for a touching pair).
+    ``box`` = (Lx, Ly, Lx/2, Ly/2)."""
+    Lx, Ly, half_Lx, half_Ly = box
+    i = pi[p]
+    j = pj[p]
+    dx = _wrap_image(pos[i, 0] - pos[j, 0], Lx, half_Lx)
+    dy = _wrap_image(pos[i, 1] - pos[j, 1], Ly, half_Ly)
+    dz = pos[i, 2] - pos[j, 2]
+    r2 = dx * dx + dy * dy + dz * dz
+    r = np.sqrt(r2)
+    ti = ptype[i]
+    tj = ptype[j]
+    m_ij = mred[p]
+    nx = dx / r
+    ny = dy / r
+    nz = dz / r
+    bi = -(radius[i] - 0.5 * (radius[i] + radius[j] - r))
+    bj = radius[j] - 0.5 * (radius[i] + radius[j] - r)
+    # relative contact-point displacement over the step (mid-step velocities)
+    dsx = dt * (vel_h[i, 0] - vel_h[j, 0] + bi * (omega_h[i, 1] * nz - omega_h[i, 2] * ny)
+                - bj * (omega_h[j, 1] * nz - omega_h[j, 2] * ny))
+    dsy = dt * (vel_h[i, 1] - vel_h[j, 1] + bi * (omega_h[i, 2] * nx - omega_h[i, 0] * nz)
+                - bj * (omega_h[j, 2] * nx - omega_h[j, 0] * nz))
+    dsz = dt * (vel_h[i, 2] - vel_h[j, 2] + bi * (omega_h[i, 0] * ny - omega_h[i, 1] * nx)
+                - bj * (omega_h[j, 0] * ny - omega_h[j, 1] * nx))
+    if not touching:
+        # the contact opened during this step: its spring energy becomes internal energy
+        e_rel = _released_spring_energy(
+            hist_t[p, 0], hist_t[p, 1], hist_t[p, 2], nx, ny, nz, RELEASE_FRACTION * dsx,
+            RELEASE_FRACTION * dsy, RELEASE_FRACTION * dsz, m_ij, law_tab[ti, tj],
+            coef[ti, tj, C_KT])
+        prel[p] = e_rel
+        pstate[p] = OPENED
+        hist_t[p, 0] = 0.0
+        hist_t[p, 1] = 0.0
+        hist_t[p, 2] = 0.0
+        hist_dmax[p] = 0.0
+        hflag[p] = 0
+        return e_rel
+    (fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, e_el, delta, fn, sx, sy, sz,
+     dm) = _contact_force(
+        nx, ny, nz, r, radius[i], radius[j], (vel[i, 0], vel[i, 1], vel[i, 2]),
+        (vel[j, 0], vel[j, 1], vel[j, 2]), (omega[i, 0], omega[i, 1], omega[i, 2]),
+        (omega[j, 0], omega[j, 1], omega[j, 2]), m_ij, law_tab[ti, tj],
+        (coef[ti, tj, C_KN], coef[ti, tj, C_GN], coef[ti, tj, C_KT], coef[ti, tj, C_GT],
+         coef[ti, tj, C_MU], coef[ti, tj, C_K2]), (hist_t[p, 0], hist_t[p, 1], hist_t[p, 2]),
+        hist_dmax[p], update_history, (dsx, dsy, dsz))
+    crow[q, 0] = fx
+    crow[q, 1] = fy
+    crow[q, 2] = fz
+    crow[q, 3] = tix
+    crow[q, 4] = tiy
+    crow[q, 5] = tiz
+    crow[q, 6] = tjx
+    crow[q, 7] = tjy
+    crow[q, 8] = tjz
+    cext[q, 0] = e_el
+    cext[q, 1] = delta
+    cext[q, 2] = fn
+    ridx[p] = q
+    pstate[p] = CONTACT if delta != 0.0 else GRAZING
+    if update_history:
+        hist_t[p, 0] = sx
+        hist_t[p, 1] = sy
+        hist_t[p, 2] = sz
+        hist_dmax[p] = dm
+        hflag[p] = _has_spring(sx, sy, sz)
+    return 0.0
+
+
+# Vectorised linear contact: the touching pairs of a block are processed in chunks of CHUNK;
+# their inputs are gathered into a per-thread work row (variables at fixed offsets, CHUNK_STRIDE
+# apart: compile-time constant distances, so the maths loop vectorises without alias checks),
+# the maths runs over the chunk in SIMD form (no branches: both sides of every choice are
+# computed and selected), and the results are scattered back.  Same operations in the same
+# order as :func:`_contact_force`: the results are bitwise those of the scalar path.
+CHUNK = 128
+CHUNK_STRIDE = CHUNK + 3   # not a power of two: the work rows do not share cache sets
+(W_DX, W_DY, W_DZ, W_RI, W_RJ, W_M, W_KN, W_GN, W_KT, W_GT, W_MU, W_VI, W_VJ, W_WI, W_WJ,
+ W_DVH, W_WHI, W_WHJ, W_S) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 14, 17, 20, 23, 26, 29, 32)
+(W_F, W_TI, W_TJ, W_EEL, W_DELTA, W_FN, W_SN) = (35, 38, 41, 44, 45, 46, 47)
+NWORK = 50
+WORK_SIZE = NWORK * CHUNK_STRIDE
 
 
 @njit(cache=True)
-def accumulate_forces(inv_mass, mass, gvec, pi, pj, pair_out, use_wall, wall_out, force, torque):
-    """Serial, order-fixed sum of gravity and pair/wall contributions into force and torque.
-
-    Returns (total elastic energy, maximum overlap, tangential spring energy released by
-    contacts that opened in this step).
-    """
-    n = force.shape[0]
-    for i in range(n):
-        if inv_mass[i] > 0.0:
-            force[i, 0] = mass[i] * gvec[0]
-            force[i, 1] = mass[i] * gvec[1]
-            force[i, 2] = mass[i] * gvec[2]
-        else:
-            force[i, 0] = 0.0
-            force[i, 1] = 0.0
-            force[i, 2] = 0.0
-        torque[i, 0] = 0.0
-        torque[i, 1] = 0.0
-        torque[i, 2] = 0.0
-    e_el = 0.0
-    max_overlap = 0.0
-    e_rel = 0.0
-    for p in range(pi.shape[0]):
-        if pair_out[p, 10] == 0.0:
-            e_rel += pair_out[p, 12]
-            continue
+def _gather_linear(work, tid, scratch, q0, m, pos, vel, omega, vel_h, omega_h, radius, ptype,
+                   box, pi, pj, mred, hist_t, coef):
+    Lx, Ly, half_Lx, half_Ly = box
+    w = work[tid]
+    q0u = np.uint64(q0)
+    for k in range(np.uint64(m)):
+        p = scratch[q0u + k]
         i = pi[p]
         j = pj[p]
-        for k in range(3):
-            force[i, k] += pair_out[p, k]
-            force[j, k] -= pair_out[p, k]
-            torque[i, k] += pair_out[p, 3 + k]
-            torque[j, k] += pair_out[p, 6 + k]
-        e_el += pair_out[p, 9]
-        if pair_out[p, 10] > max_overlap:
-            max_overlap = pair_out[p, 10]
+        ti = ptype[i]
+        tj = ptype[j]
+        w[np.uint64(W_DX * CHUNK_STRIDE) + k] = _wrap_image(pos[i, 0] - pos[j, 0], Lx, half_Lx)
+        w[np.uint64(W_DY * CHUNK_STRIDE) + k] = _wrap_image(pos[i, 1] - pos[j, 1], Ly, half_Ly)
+        w[np.uint64(W_DZ * CHUNK_STRIDE) + k] = pos[i, 2] - pos[j, 2]
+        w[np.uint64(W_RI * CHUNK_STRIDE) + k] = radius[i]
+        w[np.uint64(W_RJ * CHUNK_STRIDE) + k] = radius[j]
+        w[np.uint64(W_M * CHUNK_STRIDE) + k] = mred[p]
+        w[np.uint64(W_KN * CHUNK_STRIDE) + k] = coef[ti, tj, C_KN]
+        w[np.uint64(W_GN * CHUNK_STRIDE) + k] = coef[ti, tj, C_GN]
+        w[np.uint64(W_KT * CHUNK_STRIDE) + k] = coef[ti, tj, C_KT]
+        w[np.uint64(W_GT * CHUNK_STRIDE) + k] = coef[ti, tj, C_GT]
+        w[np.uint64(W_MU * CHUNK_STRIDE) + k] = coef[ti, tj, C_MU]
+        for c in range(3):
+            w[np.uint64((W_VI + c) * CHUNK_STRIDE) + k] = vel[i, c]
+            w[np.uint64((W_VJ + c) * CHUNK_STRIDE) + k] = vel[j, c]
+            w[np.uint64((W_WI + c) * CHUNK_STRIDE) + k] = omega[i, c]
+            w[np.uint64((W_WJ + c) * CHUNK_STRIDE) + k] = omega[j, c]
+            w[np.uint64((W_DVH + c) * CHUNK_STRIDE) + k] = vel_h[i, c] - vel_h[j, c]
+            w[np.uint64((W_WHI + c) * CHUNK_STRIDE) + k] = omega_h[i, c]
+            w[np.uint64((W_WHJ + c) * CHUNK_STRIDE) + k] = omega_h[j, c]
+            w[np.uint64((W_S + c) * CHUNK_STRIDE) + k] = hist_t[p, c]
+
+
+@njit(cache=True, error_model="numpy")
+def _linear_maths(work, tid, m, dt, update_history):
+    """The linear contact law (:func:`_contact_force`, law LINEAR, after :func:`_pair_contact`'s
+    geometry) over a chunk of the work row, in branch-free form."""
+    w = work[tid]
+    for k in range(np.uint64(m)):
+        dx = w[np.uint64(W_DX * CHUNK_STRIDE) + k]
+        dy = w[np.uint64(W_DY * CHUNK_STRIDE) + k]
+        dz = w[np.uint64(W_DZ * CHUNK_STRIDE) + k]
+        ri = w[np.uint64(W_RI * CHUNK_STRIDE) + k]
+        rj = w[np.uint64(W_RJ * CHUNK_STRIDE) + k]
+        m_ij = w[np.uint64(W_M * CHUNK_STRIDE) + k]
+        r2 = dx * dx + dy * dy + dz * dz
+        r = np.sqrt(r2)
+        nx = dx / r
+        ny = dy / r
+        nz = dz / r
+        bi = -(ri - 0.5 * (ri + rj - r))
+        bj = rj - 0.5 * (ri + rj - r)
+        whix = w[np.uint64(W_WHI * CHUNK_STRIDE) + k]
+        whiy = w[np.uint64((W_WHI + 1) * CHUNK_STRIDE) + k]
+        whiz = w[np.uint64((W_WHI + 2) * CHUNK_STRIDE) + k]
+        whjx = w[np.uint64(W_WHJ * CHUNK_STRIDE) + k]
+        whjy = w[np.uint64((W_WHJ + 1) * CHUNK_STRIDE) + k]
+        whjz = w[np.uint64((W_WHJ + 2) * CHUNK_STRIDE) + k]
+        dsx = dt * (w[np.uint64(W_DVH * CHUNK_STRIDE) + k] + bi * (whiy * nz - whiz * ny)
+                    - bj * (whjy * nz - whjz * ny))
+        dsy = dt * (w[np.uint64((W_DVH + 1) * CHUNK_STRIDE) + k] + bi * (whiz * nx - whix * nz)
+                    - bj * (whjz * nx - whjx * nz))
+        dsz = dt * (w[np.uint64((W_DVH + 2) * CHUNK_STRIDE) + k] + bi * (whix * ny - whiy * nx)
+                    - bj * (whjx * ny - whjy * nx))
+        delta = ri + rj - r
+        bix = bi * nx
+        biy = bi * ny
+        biz = bi * nz
+        bjx = bj * nx
+        bjy = bj * ny
+        bjz = bj * nz
+        vix = w[np.uint64(W_VI * CHUNK_STRIDE) + k]
+        viy = w[np.uint64((W_VI + 1) * CHUNK_STRIDE) + k]
+        viz = w[np.uint64((W_VI + 2) * CHUNK_STRIDE) + k]
+        vjx = w[np.uint64(W_VJ * CHUNK_STRIDE) + k]
+        vjy = w[np.uint64((W_VJ + 1) * CHUNK_STRIDE) + k]
+        vjz = w[np.uint64((W_VJ + 2) * CHUNK_STRIDE) + k]
+        wix = w[np.uint64(W_WI * CHUNK_STRIDE) + k]
+        wiy = w[np.uint64((W_WI + 1) * CHUNK_STRIDE) + k]
+        wiz = w[np.uint64((W_WI + 2) * CHUNK_STRIDE) + k]
+        wjx = w[np.uint64(W_WJ * CHUNK_STRIDE) + k]
+        wjy = w[np.uint64((W_WJ + 1) * CHUNK_STRIDE) + k]
+        wjz = w[np.uint64((W_WJ + 2) * CHUNK_STRIDE) + k]
+        vx = vix + (wiy * biz - wiz * biy) - vjx - (wjy * bjz - wjz * bjy)
+        vy = viy + (wiz * bix - wix * biz) - vjy - (wjz * bjx - wjx * bjz)
+        vz = viz + (wix * biy - wiy * bix) - vjz - (wjx * bjy - wjy * bjx)
+        vn = vx * nx + vy * ny + vz * nz
+        vtx = vx - vn * nx
+        vty = vy - vn * ny
+        vtz = vz - vn * nz
+        kn = m_ij * w[np.uint64(W_KN * CHUNK_STRIDE) + k]
+        gn = m_ij * w[np.uint64(W_GN * CHUNK_STRIDE) + k]
+        kt = m_ij * w[np.uint64(W_KT * CHUNK_STRIDE) + k]
+        gt = m_ij * w[np.uint64(W_GT * CHUNK_STRIDE) + k]
+        fn = kn * delta - gn * vn
+        e_el = 0.5 * kn * delta * delta
+        # spring rotated into the tangent plane keeping its length (s2 > 0, p2 > 0)
+        sx = w[np.uint64(W_S * CHUNK_STRIDE) + k]
+        sy = w[np.uint64((W_S + 1) * CHUNK_STRIDE) + k]
+        sz = w[np.uint64((W_S + 2) * CHUNK_STRIDE) + k]
+        s2 = sx * sx + sy * sy + sz * sz
+        rotate = s2 > 0.0
+        sn = sx * nx + sy * ny + sz * nz
+        px = sx - sn * nx
+        py = sy - sn * ny
+        pz = sz - sn * nz
+        sx = px if rotate else sx
+        sy = py if rotate else sy
+        sz = pz if rotate else sz
+        p2 = sx * sx + sy * sy + sz * sz
+        fac = np.sqrt(s2 / p2)
+        rescale = rotate & (p2 > 0.0)
+        px = sx * fac
+        py = sy * fac
+        pz = sz * fac
+        sx = px if rescale else sx
+        sy = py if rescale else sy
+        sz = pz if rescale else sz
+        if update_history:
+            dn = dsx * nx + dsy * ny + dsz * nz
+            sx += dsx - dn * nx
+            sy += dsy - dn * ny
+            sz += dsz - dn * nz
+        ftx = -kt * sx - gt * vtx
+        fty = -kt * sy - gt * vty
+        ftz = -kt * sz - gt * vtz
+        ft2 = ftx * ftx + fty * fty + ftz * ftz
+        fmax = w[np.uint64(W_MU * CHUNK_STRIDE) + k] * abs(fn)
+        # sliding: truncate the spring so that |f_t| = mu_c |f_n|
+        slide = ft2 > fmax * fmax
+        c = fmax / np.sqrt(ft2)
+        px = ftx * c
+        py = fty * c
+        pz = ftz * c
+        ftx = px if slide else ftx
+        fty = py if slide else fty
+        ftz = pz if slide else ftz
+        reset = slide & (kt > 0.0)
+        px = -(ftx + gt * vtx) / kt
+        py = -(fty + gt * vty) / kt
+        pz = -(ftz + gt * vtz) / kt
+        sx = px if reset else sx
+        sy = py if reset else sy
+        sz = pz if reset else sz
+        e_el += 0.5 * kt * (sx * sx + sy * sy + sz * sz)
+        fx = fn * nx + ftx
+        fy = fn * ny + fty
+        fz = fn * nz + ftz
+        w[np.uint64(W_F * CHUNK_STRIDE) + k] = fx
+        w[np.uint64((W_F + 1) * CHUNK_STRIDE) + k] = fy
+        w[np.uint64((W_F + 2) * CHUNK_STRIDE) + k] = fz
+        w[np.uint64(W_TI * CHUNK_STRIDE) + k] = biy * fz - biz * fy
+        w[np.uint64((W_TI + 1) * CHUNK_STRIDE) + k] = biz * fx - bix * fz
+        w[np.uint64((W_TI + 2) * CHUNK_STRIDE) + k] = bix * fy - biy * fx
+        w[np.uint64(W_TJ * CHUNK_STRIDE) + k] = -(bjy * fz - bjz * fy)
+        w[np.uint64((W_TJ + 1) * CHUNK_STRIDE) + k] = -(bjz * fx - bjx * fz)
+        w[np.uint64((W_TJ + 2) * CHUNK_STRIDE) + k] = -(bjx * fy - bjy * fx)
+        w[np.uint64(W_EEL * CHUNK_STRIDE) + k] = e_el
+        w[np.uint64(W_DELTA * CHUNK_STRIDE) + k] = delta
+        w[np.uint64(W_FN * CHUNK_STRIDE) + k] = fn
+        w[np.uint64(W_SN * CHUNK_STRIDE) + k] = sx
+        w[np.uint64((W_SN + 1) * CHUNK_STRIDE) + k] = sy
+        w[np.uint64((W_SN + 2) * CHUNK_STRIDE) + k] = sz
+
+
+@njit(cache=True)
+def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx, pstate, hist_t,
+                    hflag):
+    w = work[tid]
+    q0u = np.uint64(q0)
+    for k in range(np.uint64(m)):
+        q = q0u + k
+        p = scratch[q]
+        for c in range(9):
+            crow[q, c] = w[np.uint64((W_F + c) * CHUNK_STRIDE) + k]
+        delta = w[np.uint64(W_DELTA * CHUNK_STRIDE) + k]
+        cext[q, 0] = w[np.uint64(W_EEL * CHUNK_STRIDE) + k]
+        cext[q, 1] = delta
+        cext[q, 2] = w[np.uint64(W_FN * CHUNK_STRIDE) + k]
+        ridx[p] = q
+        pstate[p] = CONTACT if delta != 0.0 else GRAZING
+        if update_history:
+            sx = w[np.uint64(W_SN * CHUNK_STRIDE) + k]
+            sy = w[np.uint64((W_SN + 1) * CHUNK_STRIDE) + k]
+            sz = w[np.uint64((W_SN + 2) * CHUNK_STRIDE) + k]
+            hist_t[p, 0] = sx
+            hist_t[p, 1] = sy
+            hist_t[p, 2] = sz
+            hflag[p] = _has_spring(sx, sy, sz)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
+              hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow, cext,
+              ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, nslots, force, torque,
+              near, near_n, ntouch):
+    """Contact forces of the pairs of the near list (see the module docstring).
+
+    ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
+    mid-step velocities of the last drift (tangential spring increment).  Only the pairs of the
+    near list ``near[:near_n[0]]`` (:func:`near_pass`; in pair order) are examined: the others
+    cannot touch.  They are processed in blocks of PAIR_BLOCK near entries; ``ntouch[k]`` says
+    whether near entry k touches; the touching pairs of block b, in pair order, get the compact
+    indices q = b PAIR_BLOCK, b PAIR_BLOCK + 1, ... (``ridx[p] = q``): ``crow[q]`` = force on i
+    (0:3), torque on i (3:6), torque on j (6:9), ``cext[q]`` = elastic energy, overlap, normal
+    force; ``pstate[p]`` = CONTACT (or GRAZING: touching with zero overlap in floating point,
+    not accumulated).  A pair that stops touching while it carries a spring releases the
+    spring's energy (``prel[p]``, state OPENED) and loses its history.  Per block: the largest
+    overlap and the released energy (summed in pair order).  ``scratch`` (uint32, one per
+    pair) holds the block-local lists of touching pairs; ``work`` (one row per thread) the
+    vectorised linear contacts (``all_linear``).
+
+    The blocks are split into ``nslots`` (the number of threads) contiguous runs, one per
+    thread.  The first run adds its contacts to ``force`` and ``torque`` (which hold gravity)
+    in pair order as it goes; the others leave their rows (``blk_nc[b]`` contacts in block b)
+    for :func:`push_rows`, which adds them afterwards, again in pair order.  So every force is
+    summed in pair order, whatever the number of threads: the same numbers for any count.
+    """
+    nnear = near_n[0]
+    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
+    box = (Lx, Ly, 0.5 * Lx, 0.5 * Ly)
+    half_Lx = 0.5 * Lx
+    half_Ly = 0.5 * Ly
+    for su in prange(nslots):
+        slot = np.int64(su)
+        for b in range(slot * nblock // nslots, (slot + 1) * nblock // nslots):
+            k0 = b * PAIR_BLOCK
+            k1 = min(k0 + PAIR_BLOCK, nnear)
+            # scan of the block's near pairs (vectorised, gathers; unsigned indices: no
+            # negative-index handling): which pairs touch
+            for k in range(np.uint64(k0), np.uint64(k1)):
+                p = near[k]
+                i = pi[p]
+                j = pj[p]
+                dx = _wrap_select(pos[i, 0] - pos[j, 0], Lx, half_Lx)
+                dy = _wrap_select(pos[i, 1] - pos[j, 1], Ly, half_Ly)
+                dz = pos[i, 2] - pos[j, 2]
+                r2 = dx * dx + dy * dy + dz * dz
+                rsum = radius[i] + radius[j]
+                ntouch[k] = r2 < rsum * rsum
+            # compaction (branch-free): touching pairs to the front of the block's scratch, pairs
+            # whose contact opened (a spring, no longer touching) to its back
+            ncu = np.uint64(k0)
+            nou = np.uint64(k1)
+            for k in range(np.uint64(k0), np.uint64(k1)):
+                p = near[k]
+                t = ntouch[k]
+                pstate[p] = t
+                scratch[ncu] = p
+                ncu += np.uint64(t)
+                scratch[nou - np.uint64(1)] = p  # a free slot (or the one just taken, same p)
+                nou -= np.uint64(hflag[p] & (t ^ 1))
+            nc = np.int64(ncu)
+            no = np.int64(nou)
+            # release of the opened contacts (in pair order)
+            erel = 0.0
+            if update_history:
+                for q in range(k1 - 1, no - 1, -1):
+                    erel += _pair_contact(np.int64(scratch[q]), 0, pos, vel, omega, vel_h,
+                                          omega_h, radius, ptype, box, pi, pj, mred, hist_t,
+                                          hist_dmax, hflag, law_tab, coef, dt, update_history,
+                                          crow, cext, ridx, prel, pstate, False)
+            # contacts of the touching pairs
+            if all_linear:
+                tid = numba.get_thread_id()
+                for q0 in range(k0, nc, CHUNK):
+                    m = min(CHUNK, nc - q0)
+                    _gather_linear(work, tid, scratch, q0, m, pos, vel, omega, vel_h, omega_h,
+                                   radius, ptype, box, pi, pj, mred, hist_t, coef)
+                    _linear_maths(work, tid, m, dt, update_history)
+                    _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
+                                    pstate, hist_t, hflag)
+            else:
+                for q in range(k0, nc):
+                    _pair_contact(np.int64(scratch[q]), q, pos, vel, omega, vel_h, omega_h,
+                                  radius, ptype, box, pi, pj, mred, hist_t, hist_dmax, hflag,
+                                  law_tab, coef, dt, update_history, crow, cext, ridx, prel,
+                                  pstate, True)
+            # push the contacts (first run of blocks); largest overlap of the block
+            ov = 0.0
+            for q in range(np.uint64(k0), np.uint64(nc)):
+                p = scratch[q]
+                if pstate[p] == CONTACT:
+                    if slot == 0:
+                        i = pi[p]
+                        j = pj[p]
+                        for k in range(3):
+                            force[i, k] += crow[q, k]
+                            force[j, k] -= crow[q, k]
+                            torque[i, k] += crow[q, 3 + k]
+                            torque[j, k] += crow[q, 6 + k]
+                    if cext[q, 1] > ov:
+                        ov = cext[q, 1]
+            blk_overlap[b] = ov
+            blk_erel[b] = erel
+            blk_nc[b] = nc - k0
+
+
+@njit(cache=True)
+def push_rows(b_start, nnear, pi, pj, crow, pstate, scratch, blk_nc, force, torque):
+    """Add the contacts of near-list blocks ``b_start...`` (left as rows by :func:`pair_pass`)
+    to the forces and torques, in pair order."""
+    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
+    for b in range(b_start, nblock):
+        k0 = b * PAIR_BLOCK
+        for q in range(np.uint64(k0), np.uint64(k0 + blk_nc[b])):
+            p = scratch[q]
+            if pstate[p] == CONTACT:
+                i = pi[p]
+                j = pj[p]
+                for k in range(3):
+                    force[i, k] += crow[q, k]
+                    force[j, k] -= crow[q, k]
+                    torque[i, k] += crow[q, 3 + k]
+                    torque[j, k] += crow[q, 6 + k]
+
+
+#: Skin of the near list, as a fraction of the neighbour-list skin: the pair pass examines only
+#: the pairs closer than r_i + r_j + NEAR_FRACTION * skin at the near list's build, which is
+#: rebuilt (from the neighbour list) when a particle has moved NEAR_FRACTION * skin / 2.  (In a
+#: dense flow with skin 0.2, 65 % of the listed pairs are within 0.05 of touching.)
+NEAR_FRACTION = 0.25
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate):
+    """Near pairs per block of PAIR_BLOCK listed pairs: those closer than
+    r_i + r_j + ``near_skin`` (and every pair that carries a spring), in pair order, at
+    ``near_tmp[b PAIR_BLOCK:]``, their number in ``near_count[b]``; every pair's state is reset
+    (pairs outside the near list keep NO_CONTACT until the next near list)."""
+    npair = pi.shape[0]
+    nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
+    half_Lx = 0.5 * Lx
+    half_Ly = 0.5 * Ly
+    for bu in prange(nblock):
+        b = np.int64(bu)
+        p0 = b * PAIR_BLOCK
+        p1 = min(p0 + PAIR_BLOCK, npair)
+        for p in range(np.uint64(p0), np.uint64(p1)):
+            i = pi[p]
+            j = pj[p]
+            dx = _wrap_select(pos[i, 0] - pos[j, 0], Lx, half_Lx)
+            dy = _wrap_select(pos[i, 1] - pos[j, 1], Ly, half_Ly)
+            dz = pos[i, 2] - pos[j, 2]
+            r2 = dx * dx + dy * dy + dz * dz
+            rc = radius[i] + radius[j] + near_skin
+            pstate[p] = (r2 < rc * rc) | (hflag[p] != 0)
+        c = np.uint64(p0)
+        for p in range(np.uint64(p0), np.uint64(p1)):
+            t = pstate[p]
+            near_tmp[c] = p
+            c += np.uint64(t)
+            pstate[p] = NO_CONTACT
+        near_count[b] = np.int64(c) - p0
+
+
+@njit(cache=True)
+def near_index(near_tmp, near_count, near, near_n):
+    """The near list in pair order, ``near[:near_n[0]]``, from the per-block lists of
+    :func:`near_pass`."""
+    c = 0
+    for b in range(near_count.shape[0]):
+        p0 = b * PAIR_BLOCK
+        for k in range(p0, p0 + near_count[b]):
+            near[c] = near_tmp[k]
+            c += 1
+    near_n[0] = c
+
+
+# --------------------------------------------------------------------------------------------
+# particle pass: kicks, drift, predicted velocity, flat wall, skin check
+# --------------------------------------------------------------------------------------------
+@njit(cache=True, inline="always", error_model="numpy")
+def _wall_contact(i, pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, wall_type,
+                  wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, dt,
+                  update_history):
+    """Contact of mobile particle i with the flat frictional wall z = 0 (lambda = 0 base)."""
+    if inv_mass[i] == 0.0 or pos[i, 2] >= radius[i]:
+        wall_state[i] = NO_CONTACT
+        if update_history and inv_mass[i] > 0.0:
+            sx = wall_hist[i, 0]
+            sy = wall_hist[i, 1]
+            sz = wall_hist[i, 2]
+            if _has_spring(sx, sy, sz):
+                bi = -radius[i]
+                wall_rows[i, 9] = _released_spring_energy(
+                    sx, sy, sz, 0.0, 0.0, 1.0,
+                    RELEASE_FRACTION * dt * (vel_h[i, 0] + bi * omega_h[i, 1]),
+                    RELEASE_FRACTION * dt * (vel_h[i, 1] - bi * omega_h[i, 0]), 0.0,
+                    1.0 / inv_mass[i], law_tab[ptype[i], wall_type],
+                    coef[ptype[i], wall_type, C_KT])
+                wall_state[i] = OPENED
+        if update_history:
+            wall_hist[i, 0] = 0.0
+            wall_hist[i, 1] = 0.0
+            wall_hist[i, 2] = 0.0
+            wall_dmax[i] = 0.0
+        return
+    ti = ptype[i]
+    # the wall acts as a sphere of zero radius at (x, y, 0) touching from below
+    r = pos[i, 2]
+    bi = -(radius[i] - 0.5 * (radius[i] - r))
+    dsx = dt * (vel_h[i, 0] + bi * omega_h[i, 1])
+    dsy = dt * (vel_h[i, 1] - bi * omega_h[i, 0])
+    dsz = dt * vel_h[i, 2]
+    (fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz, e_el, delta, fn, sx, sy, sz,
+     dm) = _contact_force(
+        0.0, 0.0, 1.0, r, radius[i], 0.0, (vel[i, 0], vel[i, 1], vel[i, 2]), (0.0, 0.0, 0.0),
+        (omega[i, 0], omega[i, 1], omega[i, 2]), (0.0, 0.0, 0.0), 1.0 / inv_mass[i],
+        law_tab[ti, wall_type],
+        (coef[ti, wall_type, C_KN], coef[ti, wall_type, C_GN], coef[ti, wall_type, C_KT],
+         coef[ti, wall_type, C_GT], coef[ti, wall_type, C_MU], coef[ti, wall_type, C_K2]),
+        (wall_hist[i, 0], wall_hist[i, 1], wall_hist[i, 2]), wall_dmax[i], update_history,
+        (dsx, dsy, dsz))
+    wall_rows[i, 0] = fx
+    wall_rows[i, 1] = fy
+    wall_rows[i, 2] = fz
+    wall_rows[i, 3] = tix
+    wall_rows[i, 4] = tiy
+    wall_rows[i, 5] = tiz
+    wall_rows[i, 6] = tjx
+    wall_rows[i, 7] = tjy
+    wall_rows[i, 8] = tjz
+    wall_rows[i, 9] = e_el
+    wall_rows[i, 10] = delta
+    wall_rows[i, 11] = fn
+    wall_state[i] = CONTACT if delta != 0.0 else GRAZING
+    if update_history:
+        wall_hist[i, 0] = sx
+        wall_hist[i, 1] = sy
+        wall_hist[i, 2] = sz
+        wall_dmax[i] = dm
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def particle_pass(
+    do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque,
+    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type, wall_hist,
+    wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
+    blk_disp, near_ref, blk_disp_near,
+):
+    """The per-particle part of a step, in blocks of PARTICLE_BLOCK particles.
+
+    For every particle, in this order: ``do_wall``: its flat-wall contact at the current state
+    (without history update: the initial forces); ``do_reset``: force = gravity, torque = 0;
+    ``do_sum``: add its wall row to the force and torque (the pair pass added the pairs) and
+    check them; ``do_kick``: the closing half kick; ``do_begin``: the next step's opening half
+    kick, drift, predicted velocity (``vel_p``, ``omega_p``), force reset to gravity (for the
+    next pair pass), flat-wall contact (history updated) and squared displacement since the
+    last neighbour build (``pos_ref``) and since the last near list (``near_ref``).  Per block:
+    the largest wall overlap, the spring energy released at the wall, a non-finite-force flag
+    and the largest displacements (inf for a NaN position).
+    """
+    n = pos.shape[0]
+    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
+    h = 0.5 * dt
+    for bu in prange(nblock):
+        b = np.int64(bu)
+        # unsigned particle indices: no negative-index handling in the loops
+        i0 = np.uint64(b * PARTICLE_BLOCK)
+        i1 = np.uint64(min(b * PARTICLE_BLOCK + PARTICLE_BLOCK, n))
+        # (simple loops, one per part: the integration loops vectorise)
+        if do_wall and use_wall:
+            for i in range(i0, i1):
+                _wall_contact(i, pos, vel, omega, vel, omega, radius, inv_mass, ptype, wall_type,
+                              wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, dt,
+                              False)
+        if do_reset:
+            for i in range(i0, i1):
+                if inv_mass[i] > 0.0:
+                    for k in range(3):
+                        force[i, k] = mass[i] * gvec[k]
+                else:
+                    for k in range(3):
+                        force[i, k] = 0.0
+                for k in range(3):
+                    torque[i, k] = 0.0
+        ov = 0.0
+        erel_wall = 0.0
+        bad = False
+        if do_sum:
+            for i in range(i0, i1):
+                if use_wall:
+                    st = wall_state[i]
+                    if st == CONTACT:
+                        for k in range(3):
+                            force[i, k] += wall_rows[i, k]
+                            torque[i, k] += wall_rows[i, 3 + k]
+                        if wall_rows[i, 10] > ov:
+                            ov = wall_rows[i, 10]
+                    elif st == OPENED:
+                        erel_wall += wall_rows[i, 9]
+                if not np.isfinite(force[i, 0] + force[i, 1] + force[i, 2] + torque[i, 0]
+                                   + torque[i, 1] + torque[i, 2]):
+                    bad = True
+        if do_kick and do_begin:
+            # closing half kick of this step and opening half kick of the next (two roundings)
+            for i in range(i0, i1):
+                im = inv_mass[i]
+                ii = inv_inertia[i]
+                if im != 0.0:
+                    for k in range(3):
+                        dv = h * force[i, k] * im
+                        dw = h * torque[i, k] * ii
+                        vel[i, k] = (vel[i, k] + dv) + dv
+                        omega[i, k] = (omega[i, k] + dw) + dw
+        elif do_kick or do_begin:
+            for i in range(i0, i1):
+                im = inv_mass[i]
+                ii = inv_inertia[i]
+                if im != 0.0:
+                    for k in range(3):
+                        vel[i, k] += h * force[i, k] * im
+                        omega[i, k] += h * torque[i, k] * ii
+        disp = 0.0
+        disp_near = 0.0
+        if do_begin:
+            for i in range(i0, i1):
+                if inv_mass[i] != 0.0:
+                    x = pos[i, 0] + dt * vel[i, 0]
+                    y = pos[i, 1] + dt * vel[i, 1]
+                    # periodic wrap; the division only for the rare particle that crossed a face
+                    if not (0.0 <= x < Lx):
+                        x -= Lx * np.floor(x / Lx)
+                        if x >= Lx:
+                            x = 0.0
+                    if not (0.0 <= y < Ly):
+                        y -= Ly * np.floor(y / Ly)
+                        if y >= Ly:
+                            y = 0.0
+                    pos[i, 0] = x
+                    pos[i, 1] = y
+                    pos[i, 2] += dt * vel[i, 2]
+            # second-order estimate of v(t + dt) from the half-step velocity and the old
+            # force, for the velocity-dependent (damping) forces: restitution to O(dt^2)
+            for i in range(i0, i1):
+                im = inv_mass[i]
+                ii = inv_inertia[i]
+                for k in range(3):
+                    vel_p[i, k] = vel[i, k] + h * force[i, k] * im
+                    omega_p[i, k] = omega[i, k] + h * torque[i, k] * ii
+            # the pair pass adds the contacts onto gravity
+            for i in range(i0, i1):
+                if inv_mass[i] > 0.0:
+                    for k in range(3):
+                        force[i, k] = mass[i] * gvec[k]
+                else:
+                    for k in range(3):
+                        force[i, k] = 0.0
+                for k in range(3):
+                    torque[i, k] = 0.0
+            if use_wall:
+                for i in range(i0, i1):
+                    _wall_contact(i, pos, vel_p, omega_p, vel, omega, radius, inv_mass, ptype,
+                                  wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
+                                  law_tab, coef, dt, True)
+            for i in range(i0, i1):
+                dx = _wrap_select(pos[i, 0] - pos_ref[i, 0], Lx, 0.5 * Lx)
+                dy = _wrap_select(pos[i, 1] - pos_ref[i, 1], Ly, 0.5 * Ly)
+                dz = pos[i, 2] - pos_ref[i, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 > disp:
+                    disp = d2
+                elif not d2 == d2:  # NaN position or velocity
+                    disp = np.inf
+                dx = _wrap_select(pos[i, 0] - near_ref[i, 0], Lx, 0.5 * Lx)
+                dy = _wrap_select(pos[i, 1] - near_ref[i, 1], Ly, 0.5 * Ly)
+                dz = pos[i, 2] - near_ref[i, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 > disp_near:
+                    disp_near = d2
+        blk_overlap[b] = ov
+        blk_erel[b] = erel_wall
+        blk_bad[b] = bad
+        blk_disp[b] = disp
+        blk_disp_near[b] = disp_near
+
+
+# --------------------------------------------------------------------------------------------
+# neighbour list rebuild: pairs, history transfer, pull index, reduced masses
+# --------------------------------------------------------------------------------------------
+@njit(cache=True)
+def transfer_history(old_i, old_j, old_t, old_dmax, new_i, new_j, n, new_t, new_dmax):
+    """Carry contact history from an old sorted pair list to a new one (merge walk, O(P));
+    ``new_t``, ``new_dmax``: zeros of the new list's length, filled where a pair persists."""
+    npair = new_i.shape[0]
+    q = 0
+    nold = old_i.shape[0]
+    for p in range(npair):
+        key = np.int64(new_i[p]) * n + np.int64(new_j[p])
+        while q < nold and np.int64(old_i[q]) * n + np.int64(old_j[q]) < key:
+            q += 1
+        if q < nold and np.int64(old_i[q]) * n + np.int64(old_j[q]) == key:
+            new_t[p, 0] = old_t[q, 0]
+            new_t[p, 1] = old_t[q, 1]
+            new_t[p, 2] = old_t[q, 2]
+            new_dmax[p] = old_dmax[q]
+    return new_t, new_dmax
+
+
+#: The per-pair arrays derived from a pair list and written by the pair pass, in the order
+#: that :func:`pair_index` returns them and :func:`advance` takes them.
+PAIR_ARRAYS = ("hflag", "mred", "crow", "cext", "ridx", "prel", "pstate", "scratch",
+               "blk_pair_overlap", "blk_pair_erel", "blk_pair_nc", "near_tmp", "near_count",
+               "near", "near_n", "ntouch", "near_ref", "near_ok")
+
+
+@njit(cache=True)
+def pair_index(pi, pj, hist_t, inv_mass, n):
+    """The PAIR_ARRAYS of a sorted pair list: spring flags, reduced masses, the arrays the pair
+    pass writes (compact rows ``crow`` (P, 9) and ``cext`` (P, 3), compact index ``ridx``,
+    released energies ``prel``, states ``pstate``, ``scratch``, per-block overlap / released
+    energy, contacts), and the near list (:func:`near_pass`, :func:`near_index`; ``near_ok`` = 0:
+    to be built) with the positions at its build ``near_ref``."""
+    npair = pi.shape[0]
+    mred = np.empty(npair)
+    hflag = np.empty(npair, dtype=np.uint8)
+    for p in range(npair):
+        mred[p] = 1.0 / (inv_mass[pi[p]] + inv_mass[pj[p]])
+        hflag[p] = _has_spring(hist_t[p, 0], hist_t[p, 1], hist_t[p, 2])
+    nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
+    return (hflag, mred, np.zeros((npair, 9)), np.zeros((npair, 3)),
+            np.zeros(npair, dtype=np.uint32), np.zeros(npair), np.zeros(npair, dtype=np.uint8),
+            np.zeros(npair, dtype=np.uint32), np.zeros(nblock), np.zeros(nblock),
+            np.zeros(nblock, dtype=np.int64), np.zeros(npair, dtype=np.uint32),
+            np.zeros(nblock, dtype=np.int64), np.zeros(npair, dtype=np.uint32),
+            np.zeros(1, dtype=np.int64), np.zeros(npair, dtype=np.uint8), np.zeros((n, 3)),
+            np.zeros(1, dtype=np.uint8))
+
+
+@njit(cache=True, parallel=True)  # parallel callees (see hgrid._found_rows)
+def rebuild_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, old_pi, old_pj,
+                  old_hist, old_dmax):
+    """New neighbour list (uint32, sorted by (i, j)) with the contact history carried over."""
+    n = pos.shape[0]
+    # room for the partners of a particle in the single search pass (else a second pass)
+    cap = max(DEFAULT_CAPACITY, 4 * (old_pi.shape[0] // max(n, 1)) + 8)
+    pi, pj = hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, cap)
+    hist_t = np.zeros((pi.shape[0], 3))
+    hist_dmax = np.zeros(pi.shape[0])
+    transfer_history(old_pi, old_pj, old_hist, old_dmax, pi, pj, n, hist_t, hist_dmax)
+    return pi, pj, hist_t, hist_dmax
+
+
+# --------------------------------------------------------------------------------------------
+# time stepping
+# --------------------------------------------------------------------------------------------
+@njit(cache=True)
+def elastic_energy(cext, ridx, pstate, use_wall, wall_rows, wall_state):
+    """Elastic energy of all contacts (pairs in pair order, then the wall contacts)."""
+    e = 0.0
+    for p in range(pstate.shape[0]):
+        if pstate[p] == CONTACT:
+            e += cext[ridx[p], 0]
     if use_wall:
-        for i in range(n):
-            if wall_out[i, 10] == 0.0:
-                e_rel += wall_out[i, 12]
-                continue
-            for k in range(3):
-                force[i, k] += wall_out[i, k]
-                torque[i, k] += wall_out[i, 3 + k]
-            e_el += wall_out[i, 9]
-            if wall_out[i, 10] > max_overlap:
-                max_overlap = wall_out[i, 10]
-    return e_el, max_overlap, e_rel
+        for i in range(wall_state.shape[0]):
+            if wall_state[i] == CONTACT:
+                e += wall_rows[i, 9]
+    return e
+
+
+@njit(cache=True, parallel=True)
+def compute_forces(
+    pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec,
+    pi, pj, hist_t, hist_dmax, hflag, mred, crow, cext, ridx, prel, pstate, scratch,
+    blk_pair_overlap, blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n, ntouch,
+    near_ref, near_ok, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
+    coef, all_linear, work, dt, pos_ref, skin, nslots,
+):
+    """Forces and torques of the current state without changing the contact history (the
+    initial forces of a run).  Returns (elastic energy, maximum overlap)."""
+    n = pos.shape[0]
+    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
+    blk_overlap = np.zeros(nblock)
+    blk_erel = np.zeros(nblock)
+    blk_bad = np.zeros(nblock, dtype=np.bool_)
+    blk_disp = np.zeros(nblock)
+    blk_disp_near = np.zeros(nblock)
+    near_pass(pos, radius, hflag, Lx, Ly, pi, pj, NEAR_FRACTION * skin, near_tmp, near_count,
+              pstate)
+    near_index(near_tmp, near_count, near, near_n)
+    near_ref[:, :] = pos
+    near_ok[0] = 1
+    particle_pass(True, False, False, False, True, pos, vel, omega, vel, omega, force, torque,
+                  radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
+                  wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
+    pair_pass(pos, vel, omega, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
+              hist_dmax, hflag, law_tab, coef, all_linear, work, dt, False, crow, cext, ridx,
+              prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, nslots, force,
+              torque, near, near_n, ntouch)
+    nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
+    push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+              torque)
+    particle_pass(False, True, False, False, False, pos, vel, omega, vel, omega, force, torque,
+                  radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
+                  wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
+    max_ov = 0.0
+    for b in range(nbp):
+        max_ov = max(max_ov, blk_pair_overlap[b])
+    for b in range(nblock):
+        max_ov = max(max_ov, blk_overlap[b])
+    return elastic_energy(cext, ridx, pstate, use_wall, wall_rows, wall_state), max_ov
+
+
+@njit(cache=True, parallel=True)
+def advance(
+    nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype, fixed,
+    Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, hflag, mred, crow, cext, ridx, prel, pstate,
+    scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n,
+    ntouch, near_ref, near_ok, pos_ref, skin, level_of, level_cell, use_wall, wall_type,
+    wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, all_linear, work, dt,
+    max_overlap_allowed, nslots,
+):
+    """Advance ``nsteps`` velocity-Verlet steps (Eq. 11), rebuilding the neighbour list when a
+    particle has moved more than skin/2 since the last build (by the hierarchical grid of
+    :mod:`.hgrid` with the levels ``level_of``/``level_cell``; one level = plain cell list), and
+    the near list when a particle has moved more than half its skin since its build.  The
+    neighbour and near lists hold every touching pair, in pair order, whenever they are rebuilt:
+    the numbers do not depend on when they are.
+
+    ``nslots``: the number of threads (runs of near-list blocks of the pair pass); the forces
+    are summed in pair order for any value: the same numbers.
+
+    Arrays are updated in place, except the pair arrays, which are returned (they change size
+    on a rebuild).  Returns (pi, pj, hist_t, hist_dmax, the PAIR_ARRAYS tuple, e_elastic,
+    max_overlap, e_released, steps_done, n_rebuilds, status) with status 0 = ok,
+    1 = non-finite position or force, 2 = overlap too large (the step at which it happened is
+    steps_done).
+    """
+    n = pos.shape[0]
+    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
+    blk_overlap = np.zeros(nblock)
+    blk_erel = np.zeros(nblock)
+    blk_bad = np.zeros(nblock, dtype=np.bool_)
+    blk_disp = np.zeros(nblock)
+    blk_disp_near = np.zeros(nblock)
+    e_released = 0.0
+    max_ov = 0.0
+    nreb = 0
+    status = 0
+    done = 0
+    half_skin2 = 0.25 * skin * skin
+    near_skin = NEAR_FRACTION * skin
+    half_near2 = 0.25 * near_skin * near_skin
+    vel_p = np.empty_like(vel)
+    omega_p = np.empty_like(omega)
+    if nsteps > 0:
+        particle_pass(False, False, False, True, False, pos, vel, omega, vel_p, omega_p, force,
+                      torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
+                      use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
+                      coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                      blk_disp_near)
+    for step in range(nsteps):
+        done = step + 1
+        disp2 = 0.0
+        disp2_near = 0.0
+        for b in range(nblock):
+            disp2 = max(disp2, blk_disp[b])
+            disp2_near = max(disp2_near, blk_disp_near[b])
+        if not np.isfinite(disp2):
+            status = 1
+            break
+        if disp2 > half_skin2:
+            pi, pj, hist_t, hist_dmax = rebuild_pairs(pos, radius, fixed, Lx, Ly, skin, level_of,
+                                                      level_cell, pi, pj, hist_t, hist_dmax)
+            (hflag, mred, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
+             blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n, ntouch, near_ref,
+             near_ok) = pair_index(pi, pj, hist_t, inv_mass, n)
+            pos_ref[:, :] = pos
+            nreb += 1
+        if near_ok[0] == 0 or disp2_near > half_near2:
+            near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate)
+            near_index(near_tmp, near_count, near, near_n)
+            near_ref[:, :] = pos
+            near_ok[0] = 1
+        pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
+                  hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext, ridx,
+                  prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, nslots,
+                  force, torque, near, near_n, ntouch)
+        nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
+        push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+                  torque)
+        particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
+                      omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly,
+                      gvec, dt, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
+                      law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                      blk_disp_near)
+        # per-block results combined in block order: independent of the thread count
+        max_ov = 0.0
+        e_pairs = 0.0
+        for b in range(nbp):
+            if blk_pair_overlap[b] > max_ov:
+                max_ov = blk_pair_overlap[b]
+            e_pairs += blk_pair_erel[b]
+        e_wall = 0.0
+        bad = False
+        for b in range(nblock):
+            if blk_overlap[b] > max_ov:
+                max_ov = blk_overlap[b]
+            e_wall += blk_erel[b]
+            bad = bad or blk_bad[b]
+        e_released += e_pairs + e_wall
+        if bad:
+            status = 1
+            break
+        if max_ov > max_overlap_allowed:
+            status = 2
+            break
+    e_el = elastic_energy(cext, ridx, pstate, use_wall, wall_rows, wall_state)
+    return (pi, pj, hist_t, hist_dmax,
+            (hflag, mred, crow, cext, ridx, prel, pstate, scratch, blk_pair_overlap,
+             blk_pair_erel, blk_pair_nc, near_tmp, near_count, near, near_n, ntouch, near_ref,
+             near_ok),
+            e_el, max_ov, e_released, done, nreb, status)
 
 
 # --------------------------------------------------------------------------------------------
@@ -489,158 +1315,6 @@ def neighbour_pairs(pos, radius, fixed, Lx, Ly, skin, cell_size):
     return pi, pj
 
 
-@njit(cache=True)
-def transfer_history(old_i, old_j, old_t, old_dmax, new_i, new_j, n):
-    """Carry contact history from an old sorted pair list to a new one (merge walk, O(P))."""
-    npair = new_i.shape[0]
-    new_t = np.zeros((npair, 3))
-    new_dmax = np.zeros(npair)
-    q = 0
-    nold = old_i.shape[0]
-    for p in range(npair):
-        key = new_i[p] * n + new_j[p]
-        while q < nold and old_i[q] * n + old_j[q] < key:
-            q += 1
-        if q < nold and old_i[q] * n + old_j[q] == key:
-            new_t[p, 0] = old_t[q, 0]
-            new_t[p, 1] = old_t[q, 1]
-            new_t[p, 2] = old_t[q, 2]
-            new_dmax[p] = old_dmax[q]
-    return new_t, new_dmax
-
-
-@njit(cache=True)
-def max_displacement_sq(pos, pos_ref, Lx, Ly):
-    m = 0.0
-    for i in range(pos.shape[0]):
-        dx = _min_image(pos[i, 0] - pos_ref[i, 0], Lx)
-        dy = _min_image(pos[i, 1] - pos_ref[i, 1], Ly)
-        dz = pos[i, 2] - pos_ref[i, 2]
-        d2 = dx * dx + dy * dy + dz * dz
-        if d2 > m:
-            m = d2
-        elif not d2 == d2:  # NaN position or velocity
-            return np.inf
-    return m
-
-
-# --------------------------------------------------------------------------------------------
-# time integration
-# --------------------------------------------------------------------------------------------
-@njit(cache=True)
-def _half_kick(vel, omega, force, torque, inv_mass, inv_inertia, dt):
-    h = 0.5 * dt
-    for i in range(vel.shape[0]):
-        im = inv_mass[i]
-        if im == 0.0:
-            continue
-        ii = inv_inertia[i]
-        for k in range(3):
-            vel[i, k] += h * force[i, k] * im
-            omega[i, k] += h * torque[i, k] * ii
-
-
-@njit(cache=True)
-def _predict_velocity(vel, omega, force, torque, inv_mass, inv_inertia, dt, vel_p, omega_p):
-    """Second-order estimate of v(t + dt) from the half-step velocity and the old force, used
-    for the velocity-dependent (damping) forces so that restitution is accurate to O(dt^2)."""
-    h = 0.5 * dt
-    for i in range(vel.shape[0]):
-        im = inv_mass[i]
-        ii = inv_inertia[i]
-        for k in range(3):
-            vel_p[i, k] = vel[i, k] + h * force[i, k] * im
-            omega_p[i, k] = omega[i, k] + h * torque[i, k] * ii
-
-
-@njit(cache=True)
-def _drift(pos, vel, inv_mass, Lx, Ly, dt):
-    for i in range(pos.shape[0]):
-        if inv_mass[i] == 0.0:
-            continue
-        x = pos[i, 0] + dt * vel[i, 0]
-        y = pos[i, 1] + dt * vel[i, 1]
-        x -= Lx * np.floor(x / Lx)
-        y -= Ly * np.floor(y / Ly)
-        if x >= Lx:
-            x = 0.0
-        if y >= Ly:
-            y = 0.0
-        pos[i, 0] = x
-        pos[i, 1] = y
-        pos[i, 2] += dt * vel[i, 2]
-
-
-@njit(cache=True)
-def compute_forces(
-    pos, vel, omega, vel_h, omega_h, radius, inv_mass, mass, ptype, fixed, Lx, Ly, gvec, pi, pj, hist_t,
-    hist_dmax, use_wall, wall_type, wall_hist, wall_dmax, law_tab, kn_tab, gn_tab, kt_tab,
-    gt_tab, mu_tab, k2_tab, dt, update_history, pair_out, wall_out, force, torque,
-):
-    pair_forces(pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, Lx, Ly, pi, pj, hist_t, hist_dmax,
-                law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history,
-                pair_out)
-    if use_wall:
-        wall_forces(pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, wall_type, wall_hist, wall_dmax,
-                    law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt, update_history,
-                    wall_out)
-    return accumulate_forces(inv_mass, mass, gvec, pi, pj, pair_out, use_wall, wall_out, force,
-                             torque)
-
-
-@njit(cache=True)
-def advance(
-    nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, inv_inertia, ptype, fixed,
-    Lx, Ly, gvec, pi, pj, hist_t, hist_dmax, pos_ref, skin, level_of, level_cell, use_wall, wall_type,
-    wall_hist, wall_dmax, law_tab, kn_tab, gn_tab, kt_tab, gt_tab, mu_tab, k2_tab, dt,
-    pair_out, wall_out, max_overlap_allowed,
-):
-    """Advance ``nsteps`` velocity-Verlet steps (Eq. 11), rebuilding the neighbour list when a
-    particle has moved more than skin/2 since the last build (by the hierarchical grid of
-    :mod:`.hgrid` with the levels ``level_of``/``level_cell``; one level = plain cell list).
-
-    Arrays are updated in place, except the pair arrays, which are returned (they change size on
-    a rebuild).  Returns (pi, pj, hist_t, hist_dmax, pair_out, e_elastic, max_overlap,
-    e_released, steps_done, n_rebuilds, status) with status 0 = ok, 1 = non-finite force, 2 = overlap too
-    large (the step at which it happened is steps_done).
-    """
-    e_el = 0.0
-    max_ov = 0.0
-    e_released = 0.0
-    nreb = 0
-    half_skin2 = 0.25 * skin * skin
-    vel_p = np.empty_like(vel)
-    omega_p = np.empty_like(omega)
-    for step in range(nsteps):
-        _half_kick(vel, omega, force, torque, inv_mass, inv_inertia, dt)
-        _drift(pos, vel, inv_mass, Lx, Ly, dt)
-        _predict_velocity(vel, omega, force, torque, inv_mass, inv_inertia, dt, vel_p, omega_p)
-        disp2 = max_displacement_sq(pos, pos_ref, Lx, Ly)
-        if not np.isfinite(disp2):
-            return pi, pj, hist_t, hist_dmax, pair_out, np.nan, max_ov, e_released, step + 1, nreb, 1
-        if disp2 > half_skin2:
-            npi, npj = hgrid_pairs(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell)
-            nt, nd = transfer_history(pi, pj, hist_t, hist_dmax, npi, npj, pos.shape[0])
-            pi = npi
-            pj = npj
-            hist_t = nt
-            hist_dmax = nd
-            pair_out = np.zeros((pi.shape[0], NOUT))
-            pos_ref[:, :] = pos
-            nreb += 1
-        e_el, max_ov, e_rel = compute_forces(
-            pos, vel_p, omega_p, vel, omega, radius, inv_mass, mass, ptype, fixed, Lx, Ly, gvec, pi, pj, hist_t,
-            hist_dmax, use_wall, wall_type, wall_hist, wall_dmax, law_tab, kn_tab, gn_tab,
-            kt_tab, gt_tab, mu_tab, k2_tab, dt, True, pair_out, wall_out, force, torque,
-        )
-        _half_kick(vel, omega, force, torque, inv_mass, inv_inertia, dt)
-        e_released += e_rel
-        if not np.isfinite(e_el):
-            return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, e_released, step + 1, nreb, 1
-        if max_ov > max_overlap_allowed:
-            return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, e_released, step + 1, nreb, 2
-    return pi, pj, hist_t, hist_dmax, pair_out, e_el, max_ov, e_released, nsteps, nreb, 0
-
 
 @njit(cache=True)
 def kinetic_energy(vel, omega, mass, inertia, inv_mass):
@@ -709,17 +1383,18 @@ def insert_random(existing_pos, existing_radius, new_radius, Lx, Ly, z_lo, heigh
 
 
 @njit(cache=True)
-def contact_list(pos, radius, Lx, Ly, pi, pj, pair_out, use_wall, wall_out):
+def contact_list(pos, radius, Lx, Ly, pi, pj, crow, cext, ridx, pstate, use_wall, wall_rows,
+                 wall_state):
     """Contacts of the current state for coarse-graining: (i, j, force on i, r_i - r_j, contact
     point relative to stored r_i).  Wall contacts have j = -1 and r_ij = (0, 0, z_i)."""
     m = 0
     for p in range(pi.shape[0]):
-        if pair_out[p, 10] > 0.0:
+        if pstate[p] == CONTACT and cext[ridx[p], 1] > 0.0:
             m += 1
     nw = 0
     if use_wall:
         for i in range(pos.shape[0]):
-            if wall_out[i, 10] > 0.0:
+            if wall_state[i] == CONTACT:
                 nw += 1
     ci = np.empty(m + nw, dtype=np.int64)
     cj = np.empty(m + nw, dtype=np.int64)
@@ -728,20 +1403,20 @@ def contact_list(pos, radius, Lx, Ly, pi, pj, pair_out, use_wall, wall_out):
     cp = np.empty((m + nw, 3))
     q = 0
     for p in range(pi.shape[0]):
-        if pair_out[p, 10] == 0.0:
+        if not (pstate[p] == CONTACT and cext[ridx[p], 1] > 0.0):
             continue
-        i = pi[p]
-        j = pj[p]
+        i = np.int64(pi[p])
+        j = np.int64(pj[p])
         dx = _min_image(pos[i, 0] - pos[j, 0], Lx)
         dy = _min_image(pos[i, 1] - pos[j, 1], Ly)
         dz = pos[i, 2] - pos[j, 2]
         r = np.sqrt(dx * dx + dy * dy + dz * dz)
-        delta = pair_out[p, 10]
+        delta = cext[ridx[p], 1]
         bi = -(radius[i] - 0.5 * delta) / r
         ci[q] = i
         cj[q] = j
         for k in range(3):
-            f[q, k] = pair_out[p, k]
+            f[q, k] = crow[ridx[p], k]
         rij[q, 0] = dx
         rij[q, 1] = dy
         rij[q, 2] = dz
@@ -751,17 +1426,41 @@ def contact_list(pos, radius, Lx, Ly, pi, pj, pair_out, use_wall, wall_out):
         q += 1
     if use_wall:
         for i in range(pos.shape[0]):
-            if wall_out[i, 10] == 0.0:
+            if wall_state[i] != CONTACT:
                 continue
             ci[q] = i
             cj[q] = -1
             for k in range(3):
-                f[q, k] = wall_out[i, k]
+                f[q, k] = wall_rows[i, k]
             rij[q, 0] = 0.0
             rij[q, 1] = 0.0
             rij[q, 2] = pos[i, 2]
             cp[q, 0] = pos[i, 0]
             cp[q, 1] = pos[i, 1]
-            cp[q, 2] = pos[i, 2] - (radius[i] - 0.5 * wall_out[i, 10])
+            cp[q, 2] = pos[i, 2] - (radius[i] - 0.5 * wall_rows[i, 10])
             q += 1
     return ci, cj, f, rij, cp
+
+
+def legacy_pair_rows(crow, cext, ridx, prel, pstate):
+    """The (P, NOUT) per-pair table of the engine before issue 15: force on i (0:3), torque on i
+    (3:6), torque on j (6:9), elastic energy (9), overlap (10), normal force (11), spring energy
+    released by a contact that opened in the last step (12); zeros for pairs without contact."""
+    out = np.zeros((pstate.shape[0], NOUT))
+    live = (pstate == CONTACT) | (pstate == GRAZING)
+    q = ridx[live].astype(np.int64)
+    out[live, :9] = crow[q]
+    out[live, 9:12] = cext[q]
+    opened = pstate == OPENED
+    out[opened, 12] = prel[opened]
+    return out
+
+
+def legacy_wall_rows(wall_rows, wall_state):
+    """The per-particle flat-wall table in the layout of :func:`legacy_pair_rows`."""
+    out = np.zeros((wall_state.shape[0], NOUT))
+    live = (wall_state == CONTACT) | (wall_state == GRAZING)
+    out[live, :NROW] = wall_rows[live]
+    opened = wall_state == OPENED
+    out[opened, 12] = wall_rows[opened, 9]
+    return out

@@ -1,0 +1,145 @@
+"""Engine throughput against the number of particles, and memory per particle (issue 15).
+
+Prepares (once, cached in ``benchmarks/_work/``) a dense flowing chute in a 10 x 5 box with the
+protocol of ``bench_engine_vs_lammps.py`` (theta = 24 deg, lambda = 1, H = 20: ~1000 flow +
+~100 base particles, the paper's species, skin 0.2, dt = 1e-4), then tiles it kx x ky times in
+the periodic x, y directions (an exact periodic image of the same flow) to get N from ~1.1e3 to
+~1.1e5, and times ``ParticleSystem.step`` on each (``--repeat`` rounds over all sizes; at least
+``--min-steps`` steps and ~``--seconds`` of work per run, so that every run contains neighbour-
+list rebuilds).  Prints particle-steps per second (best and median), their ratio to the
+smallest system, the load average, and the memory: bytes per particle held by the engine's
+arrays after the run (particles, pair list, contact history and rows, near list, work rows),
+and the growth of the process's peak resident memory per particle.
+
+    .venv/bin/python benchmarks/bench_engine_scaling.py [--tiles 1 2 3 5 7 10] [--repeat 3]
+        [--threads 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import bench_engine_vs_lammps as B  # noqa: E402
+
+SMALL_BOX = (10.0, 5.0)
+
+
+def tiled_system(state, kx, ky):
+    """The prepared small-box state repeated kx x ky times (zero contact history)."""
+    from granflow.engine.chute import ChuteConfig
+    from granflow.engine.system import ParticleSystem
+    from granflow.units import RHO_PARTICLE
+
+    lx, ly = SMALL_BOX
+    ref = B.paper_species()
+    fb, _ = B.matched_species(ref)
+    cfg = ChuteConfig(theta=B.THETA, H=float(state["H"]), lam=B.LAM, Lx=lx * kx, Ly=ly * ky,
+                      flow=ref, base=fb, skin=B.SKIN)
+    tab = cfg.interactions()
+    s = ParticleSystem(lx * kx, ly * ky, tab, gvec=cfg.gravity, skin=B.SKIN)
+    fixed0 = np.asarray(state["fixed"], bool)
+    parts = {k: [] for k in ("pos", "vel", "omega", "diameter", "fixed")}
+    for a in range(kx):
+        for b in range(ky):
+            shift = np.array([a * lx, b * ly, 0.0])
+            for name in ("vel", "omega", "diameter"):
+                parts[name].append(np.asarray(state[name])[~fixed0])
+            parts["pos"].append(np.asarray(state["pos"])[~fixed0] + shift)
+            parts["fixed"].append(np.zeros((~fixed0).sum(), bool))
+    for a in range(kx):  # fixed (base) particles last
+        for b in range(ky):
+            shift = np.array([a * lx, b * ly, 0.0])
+            for name in ("vel", "omega", "diameter"):
+                parts[name].append(np.asarray(state[name])[fixed0])
+            parts["pos"].append(np.asarray(state["pos"])[fixed0] + shift)
+            parts["fixed"].append(np.ones(fixed0.sum(), bool))
+    arr = {k: np.concatenate(v) for k, v in parts.items()}
+    ptype = np.where(arr["fixed"], len(tab.type_names) - 1, 0)
+    s.set_particles(arr["pos"], arr["diameter"], density=RHO_PARTICLE, ptype=ptype,
+                    fixed=arr["fixed"])
+    s.vel[:] = arr["vel"]
+    s.omega[:] = arr["omega"]
+    s.initialize()
+    return s
+
+
+def engine_bytes(s) -> int:
+    """Bytes held by the engine's arrays (particles, pairs, rows, near list, work rows)."""
+    total = 0
+    for name in s._ARRAYS:
+        total += np.asarray(getattr(s, name)).nbytes
+    total += sum(a.nbytes for a in s._pair)
+    total += s._work.nbytes + s._inv_mass.nbytes + s._inv_inertia.nbytes + s._level_of.nbytes
+    return total
+
+
+def maxrss_bytes() -> int:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: kB
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 3, 5, 7, 10],
+                    help="tiling factors k (k x k copies of the 10 x 5 box)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--seconds", type=float, default=3.0, help="work per run (estimate)")
+    ap.add_argument("--min-steps", type=int, default=1000)
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args(argv)
+    import numba
+
+    numba.set_num_threads(args.threads)
+    B.LX, B.LY = SMALL_BOX
+    state = B.prepare(20.0, args.seed, False, 10.0, 60.0, 1.0)
+    w = tiled_system(state, 1, 1)
+    w.step(20)  # compile / load the cache
+    print(f"dense chute tiled from a {SMALL_BOX[0]:g} x {SMALL_BOX[1]:g} box "
+          f"(N0 = {w.n}), {args.threads} thread(s), {args.repeat} round(s)")
+    rows = {k: [] for k in args.tiles}
+    mem = {}
+    rss0 = maxrss_bytes()
+    for r in range(args.repeat):
+        for k in args.tiles:
+            s = tiled_system(state, k, k)
+            steps = max(args.min_steps, int(args.seconds * 2.0e7 / s.n))
+            load = os.getloadavg()[0]
+            t0 = time.perf_counter()
+            s.step(steps)
+            wall = time.perf_counter() - t0
+            rows[k].append((s.n, steps, s.n * steps / wall, load, s.n_rebuilds))
+            if r == 0:
+                rss = maxrss_bytes()
+                mem[k] = (engine_bytes(s) / s.n, max(rss - rss0, 0) / s.n, len(s.pi) / s.n)
+                rss0 = max(rss0, rss)
+            print(f"  round {r + 1}: N = {s.n:7d}, {steps:6d} steps, "
+                  f"{s.n * steps / wall:.3g} particle-steps/s, {s.n_rebuilds} rebuilds, "
+                  f"load {load:.2f}", flush=True)
+    print()
+    print(f"{'N':>8} {'best ps/s':>11} {'median ps/s':>12} {'best/best(N0)':>13} "
+          f"{'pairs/N':>8} {'engine B/N':>10} {'peak RSS B/N':>12} {'load':>6}")
+    ref = max(x[2] for x in rows[args.tiles[0]])
+    for k in args.tiles:
+        n = rows[k][0][0]
+        best = max(x[2] for x in rows[k])
+        med = float(np.median([x[2] for x in rows[k]]))
+        eb, rb, ppn = mem[k]
+        print(f"{n:>8d} {best:>11.3g} {med:>12.3g} {best / ref:>13.3f} {ppn:>8.2f} {eb:>10.0f} "
+              f"{rb:>12.0f} {max(x[3] for x in rows[k]):>6.2f}")
+    print("(engine B/N: bytes of the engine's arrays per particle after the run; peak RSS B/N: "
+          "growth of the process's peak resident memory when that size first ran, per "
+          "particle — it includes the temporaries of a rebuild)")
+
+
+if __name__ == "__main__":
+    main()
