@@ -56,7 +56,9 @@ def test_absurd_run_refused_by_simulate_with_the_estimate(tmp_path, change, what
     assert re.search(what, err) and "the machine has" in err, err
     assert not (tmp_path / "out").exists()
     assert time.monotonic() - t0 < 60
-    assert peak < 1e9  # refused before anything was allocated
+    # refused before anything was allocated (the run would need TiB); the bound leaves room
+    # for numba compiling the kernels at import on a cold cache (~1.1 GB peak seen)
+    assert peak < 3e9
 
 
 def test_memory_limit_comes_from_the_machine():
