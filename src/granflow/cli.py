@@ -47,17 +47,123 @@ def set_process_name(name: str) -> bool:
         return False
 
 
+def _running_simulation(pid: int) -> bool:
+    """True if ``pid`` is a live ``granflow simulate`` (named PROCESS_NAME) other than us."""
+    import os
+
+    if pid == os.getpid():
+        return False
+    try:
+        with open(f"/proc/{pid}/comm") as fh:
+            return fh.read().strip() == PROCESS_NAME
+    except OSError:
+        return False
+
+
+#: seconds a new run waits for a previous run of the same folder to stop (after its workflow
+#: was killed, the previous run notices within a second and stops: see watch_workflow)
+PREVIOUS_RUN_WAIT_S = 15.0
+
+
+def wait_for_previous_run(pid_file, wait_s: float = PREVIOUS_RUN_WAIT_S):
+    """Refuse to start a run in a folder another live run is working on (its pid file names a
+    running ``granflow-sim``), after waiting ``wait_s`` for it to stop.  A stale pid file (the
+    run was killed) is ignored."""
+    import time
+
+    try:
+        pid = int(open(pid_file).read().strip())
+    except (OSError, ValueError):
+        return
+    deadline = time.monotonic() + wait_s
+    while _running_simulation(pid):
+        if time.monotonic() > deadline:
+            raise ValueError(f"{pid_file.parent} is in use: the run with pid {pid} is still "
+                             f"working on it ({pid_file}); stop it first (kill {pid}) or wait "
+                             "for it to finish")
+        time.sleep(0.2)
+
+
+#: environment variable naming the workflow process a granflow command belongs to
+#: ("<host>:<pid>:<start time>", set by the workflow, workflow/rules/common.smk)
+WORKFLOW_ENV = "GRANFLOW_WORKFLOW_PROCESS"
+
+
+def process_start_time(pid: int):
+    """Start time of process ``pid`` (clock ticks since boot, /proc/<pid>/stat), or None."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            stat = fh.read()
+        return int(stat.rsplit(")", 1)[1].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def workflow_token(pid: int | None = None) -> str:
+    """The value of WORKFLOW_ENV for process ``pid`` (default: this one)."""
+    import os
+    import socket
+
+    pid = os.getpid() if pid is None else pid
+    return f"{socket.gethostname()}:{pid}:{process_start_time(pid)}"
+
+
+def watch_workflow(interval_s: float = 0.5):
+    """Stop this process (SIGTERM) when the workflow that started it is gone.
+
+    Snakemake killed with SIGKILL cannot stop its jobs; without this they would run on as
+    orphans next to the jobs of the rerun.  The workflow names itself in WORKFLOW_ENV; a job
+    on the same host watches that process (pid and start time, so a reused pid does not count)
+    from a daemon thread.  Not set, another host, or no /proc: nothing is watched.
+    """
+    import os
+    import signal
+    import socket
+    import threading
+    import time
+
+    token = os.environ.get(WORKFLOW_ENV, "")
+    try:
+        host, pid, start = token.rsplit(":", 2)
+        pid = int(pid)
+    except ValueError:
+        return None
+    if host != socket.gethostname() or start == "None" or process_start_time(pid) is None:
+        return None
+
+    def gone():
+        return process_start_time(pid) != int(start)
+
+    if gone():
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    def watch():
+        while True:
+            time.sleep(interval_s)
+            if gone():
+                logging.getLogger("granflow").warning(
+                    "the workflow process %d is gone: stopping (a rerun resumes)", pid)
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+
+    thread = threading.Thread(target=watch, name="granflow-workflow-watch", daemon=True)
+    thread.start()
+    return thread
+
+
 def cmd_simulate(args):
     import os
     import signal
     from pathlib import Path
 
     from .provenance import atomic_write_bytes
-    from .simulate import load_params, simulate
+    from .simulate import check_output_folder, estimate_run_size, load_params, simulate
 
     params = load_params(args.params)
+    check_output_folder(args.out, estimate_run_size(params)["output_bytes"])
     set_process_name(PROCESS_NAME)
     pid_file = Path(args.out) / "simulate.pid"
+    wait_for_previous_run(pid_file)
     atomic_write_bytes(pid_file, f"{os.getpid()}\n".encode())
     def remove_pid_file():
         try:
@@ -85,7 +191,11 @@ def cmd_simulate(args):
 
 
 def cmd_prepare_base(args):
-    from .simulate import prepare_base_file
+    from pathlib import Path
+
+    from .simulate import check_output_folder, prepare_base_file
+
+    check_output_folder(Path(args.out).parent, 64e6, what="the base preparation")
 
     pos = prepare_base_file(args.lam, args.Lx, args.Ly, args.seed, args.out,
                             base_layers=args.base_layers, settle_time=args.settle_time)
@@ -206,9 +316,14 @@ def main(argv=None):
 
     args = parser.parse_args(argv)
     _setup_logging(args.verbose)
+    if argv is None:  # a command-line process (not a call from Python): stop with its workflow
+        watch_workflow()
     try:
         args.func(args)
     except (ValueError, FileNotFoundError) as exc:
+        print(f"granflow {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # permission denied, no space left, ...: the message names the file
         print(f"granflow {args.command}: error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -11,6 +11,7 @@ import datetime as _dt
 import hashlib
 import json
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -90,23 +91,112 @@ def provenance_attrs(config=None, **parameters) -> dict:
     return attrs
 
 
+def _host() -> str:
+    import socket
+
+    return socket.gethostname().replace("/", "_") or "localhost"
+
+
+def temporary_path(path: str | os.PathLike) -> Path:
+    """Name of the temporary sibling an atomic write of ``path`` goes through:
+    ``.<name>.tmp-<host>-<pid>`` (host and pid tell a later run whether its writer is gone)."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.tmp-{_host()}-{os.getpid()}")
+
+
+#: temporary files of atomic writes: ``.<name>.tmp-<host>-<pid>`` (this module; older ones
+#: without the host) and the library's ``.<name>.staging-<pid>-<hex>``
+_TEMPORARY = re.compile(r"^\..+\.(?:tmp-(?:(?P<host>.+)-)?(?P<pid>\d+)"
+                        r"|staging-(?P<spid>\d+)-[0-9a-f]+)$")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, another user's
+        return True
+    except OSError:
+        return False
+    return True
+
+
+def remove_stale_temporaries(directory: str | os.PathLike) -> list[Path]:
+    """Delete the temporary files that killed writers left in ``directory``.
+
+    An atomic write goes through a temporary sibling (:func:`temporary_path`, the library's
+    staging files) that is renamed into place at the end; a writer killed with SIGKILL (or a
+    machine that went down) leaves it behind.  Such a file is removed when its writer is known
+    to be gone: it was written on this host (or names no host) by a process that no longer
+    runs.  Files of other hosts (a shared file system) are left alone.  Returns the removed
+    paths; never raises.
+    """
+    removed = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    here = _host()
+    for entry in entries:
+        m = _TEMPORARY.match(entry.name)
+        if m is None:
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+        except OSError:
+            continue
+        host = m.group("host")
+        pid = int(m.group("pid") or m.group("spid"))
+        if host is not None and host != here:
+            continue
+        if pid == os.getpid() or _pid_alive(pid):
+            continue
+        try:
+            os.unlink(entry.path)
+            removed.append(Path(entry.path))
+        except OSError:
+            pass
+    return removed
+
+
+def remove_stale_temporaries_under(root: str | os.PathLike) -> list[Path]:
+    """:func:`remove_stale_temporaries` in ``root`` and every folder below it."""
+    removed = []
+    for folder, _, _ in os.walk(root):
+        removed += remove_stale_temporaries(folder)
+    return removed
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename).
+
+    Temporaries left in that folder by killed writers are removed first
+    (:func:`remove_stale_temporaries`); a failed write removes its own."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    remove_stale_temporaries(path.parent)
+    tmp = temporary_path(path)
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 def atomic_to_netcdf(dataset, path: str | os.PathLike, **kwargs) -> None:
     """Write an xarray Dataset to netCDF atomically (temporary file, then rename).
 
     The CF encoding of :func:`granflow.cfconventions.encoding` (no _FillValue on coordinates,
-    int32 instead of int64) is applied under any ``encoding`` given."""
+    int32 instead of int64) is applied under any ``encoding`` given.  Temporaries left in the
+    folder by killed writers are removed first (:func:`remove_stale_temporaries`)."""
     from .cfconventions import encoding as cf_encoding
 
     enc = cf_encoding(dataset)
@@ -114,7 +204,8 @@ def atomic_to_netcdf(dataset, path: str | os.PathLike, **kwargs) -> None:
         enc[name] = {**enc.get(name, {}), **e}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    remove_stale_temporaries(path.parent)
+    tmp = temporary_path(path)
     try:
         dataset.to_netcdf(tmp, encoding=enc, **kwargs)
         os.replace(tmp, path)

@@ -42,7 +42,8 @@ from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_ba
 from .engine.run import ChuteRun
 from .engine.system import ParticleSystem
 from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
-from .provenance import atomic_to_netcdf, atomic_write_bytes, provenance_attrs
+from .provenance import (atomic_to_netcdf, atomic_write_bytes, provenance_attrs,
+                         remove_stale_temporaries)
 
 log = logging.getLogger(__name__)
 
@@ -89,11 +90,84 @@ PARAMETERS = {
 ENGINES = ("numba", "lammps")
 
 
-def validate_params(params: dict) -> dict:
-    """Check names and ranges of a run parameter mapping; return it with defaults filled in."""
+#: Allowed interval of every numeric parameter: (low, high, low open, high open).  Checked
+#: here, independently of the engine's own checks, so that a bad value is always refused with
+#: the parameter's name and this interval, before any compute.
+RANGES = {
+    "theta": (0.0, 90.0, True, True), "H": (0.0, 1e4, True, False), "lam": (0.0, 10.0, False, False),
+    "Lx": (0.0, 1e4, True, False), "Ly": (0.0, 1e4, True, False), "seed": (0, 2**63 - 1, False, False),
+    "t_end": (0.0, 1e7, True, False), "t_c": (0.0, 1.0, True, False), "e": (0.0, 1.0, True, False),
+    "mu_c": (0.0, math.inf, False, False), "kt_over_kn": (0.0, 10.0, False, False),
+    "gt_over_gn": (0.0, 10.0, False, False), "v_ref": (0.0, 1e3, True, False),
+    "base_t_c": (0.0, 1.0, True, False), "base_e": (0.0, 1.0, True, False),
+    "base_mu_c": (0.0, math.inf, False, False), "steps_per_collision": (10.0, 1e6, False, False),
+    "skin": (0.0, 10.0, True, False), "sigma": (0.0, 1.0, True, False), "phi0": (0.0, 1.0, False, False),
+    "base_layers": (3.0, 100.0, False, False), "sample_interval": (0.0, 1e6, True, False),
+    "checkpoint_every_s": (0.0, 1e7, False, False), "averaging_time": (0.0, 1e7, True, False),
+    "check_every": (0.0, 1e7, True, False), "min_accelerating_time": (0.0, 1e7, False, False),
+    "cg_width": (0.0, 100.0, True, False), "cg_dz": (0.0, 10.0, True, False),
+    "cg_window": (0.0, 1e7, True, False), "cg_every": (1, 10**6, False, False),
+}
+#: parameters that must be integers, true/false, or one of a few names
+INTEGER_PARAMETERS = ("seed", "cg_every")
+BOOLEAN_PARAMETERS = ("early_stop", "stop_when_flowing")
+CHOICE_PARAMETERS = ("contact_law", "cg_base_line")
+#: parameters that may be null (their default is derived from others)
+OPTIONAL_PARAMETERS = ("sample_interval", "min_accelerating_time", "base_t_c", "base_e", "base_mu_c")
+#: most time steps a run may take (t_end / dt): 500 times the paper's protocol (2e7 steps)
+MAX_STEPS = 1e10
+
+
+def _interval(key) -> str:
+    lo, hi, lo_open, hi_open = RANGES[key]
+    return f"{'(' if lo_open else '['}{lo}, {hi}{')' if hi_open or hi == math.inf else ']'}"
+
+
+def _check_value(key, value):
+    """Type and range of one parameter; returns the value (ints as int)."""
+    if key in BOOLEAN_PARAMETERS:
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{key} = {value!r} must be true or false")
+        return bool(value)
+    if key in CHOICE_PARAMETERS:
+        from .coarse.profiles import BASE_LINES
+
+        allowed = sorted(LAWS) if key == "contact_law" else sorted(BASE_LINES)
+        if not isinstance(value, str) or value not in allowed:
+            raise ValueError(f"{key} = {value!r} is unknown: allowed {allowed}")
+        return value
+    if value is None and key in OPTIONAL_PARAMETERS:
+        return None
+    what = "an integer" if key in INTEGER_PARAMETERS else "a number"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
+                                                                      np.floating)):
+        raise ValueError(f"{key} = {value!r} must be {what} in {_interval(key)}"
+                         + (" or null" if key in OPTIONAL_PARAMETERS else ""))
+    v = float(value)
+    lo, hi, lo_open, hi_open = RANGES[key]
+    if (math.isnan(v) or v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi)
+            or (math.isinf(v) and hi != math.inf)):
+        raise ValueError(f"{key} = {value!r} is out of range: allowed {_interval(key)}")
+    if key in INTEGER_PARAMETERS:
+        if not v.is_integer():
+            raise ValueError(f"{key} = {value!r} must be an integer in {_interval(key)}")
+        return int(value)
+    return float(value) if isinstance(value, (np.integer, np.floating)) else value
+
+
+def validate_params(params: dict, *, check_machine: bool = True) -> dict:
+    """Check names, types and ranges of a run parameter mapping and the size of the run it
+    describes; return it with defaults filled in.
+
+    Every problem raises ValueError naming the parameter and its allowed range, before any
+    compute.  The run's memory and disk needs are estimated (:func:`estimate_run_size`); a run
+    of more than :data:`MAX_STEPS` time steps is refused, and with ``check_machine`` one whose
+    memory estimate exceeds this machine's memory (:func:`machine_memory`) too.
+    """
     if not isinstance(params, dict):
-        raise ValueError("run parameters must be a mapping of names to values")
-    unknown = sorted(set(params) - set(PARAMETERS))
+        raise ValueError(f"run parameters must be a mapping of names to values, not "
+                         f"{type(params).__name__}")
+    unknown = sorted((k for k in params if k not in PARAMETERS), key=repr)
     if unknown:
         raise ValueError(f"unknown parameter(s) {unknown}: allowed keys are {sorted(PARAMETERS)}")
     p = dict(theta=24.0, H=10.0, lam=1.0, Lx=20.0, Ly=10.0, seed=1, t_end=2000.0,
@@ -107,43 +181,203 @@ def validate_params(params: dict) -> dict:
     p.update(params)
     for key in ("base_t_c", "base_e", "base_mu_c"):
         p.setdefault(key, None)
-    check_range("theta", p["theta"], 0.0, 90.0, lo_open=True, hi_open=True)
-    check_range("H", p["H"], 0.0, 1e4, lo_open=True)
-    check_range("lam", p["lam"], 0.0, 10.0)
-    check_range("t_end", p["t_end"], 0.0, 1e7, lo_open=True)
-    check_range("seed", p["seed"], 0, 2**63 - 1)
-    if p["contact_law"] not in LAWS:
-        raise ValueError(f"contact_law = {p['contact_law']!r} is unknown: allowed {sorted(LAWS)}")
-    if p["sample_interval"] is not None:
-        check_range("sample_interval", p["sample_interval"], 0.0, 1e6, lo_open=True)
-    check_range("checkpoint_every_s", p["checkpoint_every_s"], 0.0, 1e7)
-    check_range("averaging_time", p["averaging_time"], 0.0, 1e7, lo_open=True)
-    check_range("check_every", p["check_every"], 0.0, 1e7, lo_open=True)
-    if p["min_accelerating_time"] is not None:
-        check_range("min_accelerating_time", p["min_accelerating_time"], 0.0, 1e7)
-    check_range("cg_width", p["cg_width"], 0.0, 100.0, lo_open=True)
-    check_range("cg_dz", p["cg_dz"], 0.0, 10.0, lo_open=True)
-    check_range("cg_window", p["cg_window"], 0.0, 1e7, lo_open=True)
-    check_range("cg_every", p["cg_every"], 1, 1e6)
-    from .coarse.profiles import BASE_LINES
-    if p["cg_base_line"] not in BASE_LINES:
-        raise ValueError(f"cg_base_line = {p['cg_base_line']!r} is unknown: allowed "
-                         f"{sorted(BASE_LINES)}")
-    if not isinstance(p["stop_when_flowing"], bool):
-        raise ValueError(f"stop_when_flowing = {p['stop_when_flowing']!r} must be true or false")
+    for key in PARAMETERS:
+        if key != "engine":
+            p[key] = _check_value(key, p[key])
     if "engine" in p:
-        if p["engine"] not in ENGINES:
+        if not isinstance(p["engine"], str) or p["engine"] not in ENGINES:
             raise ValueError(f"engine = {p['engine']!r} is unknown: allowed {list(ENGINES)}")
         if p["engine"] == "lammps":
             from .lammps.species import check_supported
 
             check_supported(p["contact_law"], p["lam"])
-    if not isinstance(p["early_stop"], bool):
-        raise ValueError(f"early_stop = {p['early_stop']!r} must be true or false")
+    if p["contact_law"] == "plastic":
+        for key in ("e", "base_e"):
+            if p[key] is not None and p[key] >= 1.0:
+                raise ValueError(f"{key} = {p[key]!r} is out of range for the plastic law: "
+                                 "allowed (0, 1)")
     cfg = chute_config(p)
     cfg.validate()
     BaseConfig(lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"], base_layers=p["base_layers"]).validate()
+    d_large = 1.0 / p["sigma"] if p["phi0"] < 1.0 else 1.0
+    if min(p["Lx"], p["Ly"]) < d_large:
+        raise ValueError(f"Lx, Ly = {p['Lx']:g}, {p['Ly']:g} is smaller than a large particle "
+                         f"(diameter 1/sigma = {d_large:g}): allowed Lx, Ly >= 1/sigma")
+    n_small, n_large = flow_particle_counts(p)
+    if n_small + n_large < 1:
+        raise ValueError(f"H = {p['H']!r} puts no flow particle into the {p['Lx']:g} x "
+                         f"{p['Ly']:g} box (N = H Lx Ly rounds to 0): allowed H >= "
+                         f"{0.5 / (p['Lx'] * p['Ly']):.3g}")
+    size = estimate_run_size(p)
+    if size["n_steps"] > MAX_STEPS:
+        raise ValueError(
+            f"t_end = {p['t_end']:g} is {size['n_steps']:.3g} time steps of dt = t_c / "
+            f"steps_per_collision = {size['dt']:.3g}: allowed at most {MAX_STEPS:.0e} steps "
+            f"(t_end <= {MAX_STEPS * size['dt']:.3g}; or a larger t_c, fewer steps_per_collision)")
+    if check_machine:
+        limit = machine_memory()
+        if size["memory_bytes"] > limit:
+            raise ValueError(
+                f"run too large for this machine: it needs about {_fmt_bytes(size['memory_bytes'])}"
+                f" of memory ({size['explanation']}), the machine has {_fmt_bytes(limit)}; "
+                "allowed: a run whose estimate fits, i.e. fewer particles (H, Lx, Ly: "
+                f"{size['n_particles']:.3g} now), fewer samples (t_end / sample_interval: "
+                f"{size['n_samples']:.3g} now) or a coarser profile grid (cg_dz, cg_window: "
+                f"{size['n_profile_values']:.3g} stored values now)")
     return p
+
+
+def flow_particle_counts(p: dict) -> tuple[int, int]:
+    """Numbers of small (species 0) and large flow particles of a run, as the chute set-up
+    (:meth:`~granflow.engine.chute.ChuteConfig.flow_particles`) makes them, without making them
+    (floats: an absurd size must not overflow)."""
+    area = p["Lx"] * p["Ly"]
+    if p["phi0"] >= 1.0:
+        return float(round(p["H"] * area)), 0.0
+    v_total = p["H"] * area * math.pi / 6.0
+    d_l = 1.0 / p["sigma"]
+    return (float(round(p["phi0"] * v_total / (math.pi / 6))),
+            float(round((1 - p["phi0"]) * v_total / (math.pi / 6 * d_l**3))))
+
+
+#: Coefficients of the memory estimate (bytes), measured against the peak resident memory of
+#: real runs (tests/test_robustness_size.py): the interpreter with numpy, numba, scipy and
+#: xarray loaded; per particle (positions, velocities, forces, wall history, cell lists); per
+#: neighbour pair (indices, tangential history, per-pair output); per stored sample of the
+#: time series (Python lists of the energy series, monitors); per stored profile value.
+MEMORY_BASELINE = 400e6
+BYTES_PER_PARTICLE = 1000.0
+PAIRS_PER_PARTICLE = 40.0
+BYTES_PER_PAIR = 2 * 19 * 8.0
+BYTES_PER_SAMPLE = 400.0
+BYTES_PER_PROFILE_VALUE = 3 * 8.0
+
+
+def estimate_run_size(p: dict) -> dict:
+    """Memory (peak resident, bytes) and output size (bytes) a run will need, from validated
+    parameters: particles from H, Lx, Ly, sigma, phi0 and lambda (flow, base band and the base
+    preparation fill); neighbour pairs (~40 per particle); samples of the time series
+    (t_end / sample_interval); and the coarse-graining grid (depth bins x columns x time
+    windows).  All in floats, so that an absurd size gives a huge number, not an overflow."""
+    n_small, n_large = flow_particle_counts(p)
+    n_flow = n_small + n_large
+    area = p["Lx"] * p["Ly"]
+    lam = p["lam"]
+    n_base = n_prep = 0.0
+    if lam > 0:
+        # the kept band is 1.7 lambda thick, the preparation fill base_layers lambda (packing 0.6)
+        n_base = 1.7 * lam * area * 0.6 / (math.pi / 6 * lam**3)
+        n_prep = p["base_layers"] * lam * area * 0.6 / (math.pi / 6 * lam**3)
+    n_particles = max(n_flow + n_base, n_prep)
+    t_c = min(x for x in (p["t_c"], p.get("base_t_c")) if x is not None)
+    dt = t_c / p["steps_per_collision"]
+    n_steps = p["t_end"] / dt
+    interval = p["sample_interval"] if p["sample_interval"] is not None else 0.5 * t_c
+    n_samples = min(p["t_end"] / max(interval, dt), n_steps) + 1.0
+    # the depth grid of simulate._observers and its columns (coarse.profiles)
+    d_max = 1.0 / p["sigma"] if p["phi0"] < 1.0 else 1.0
+    z_span = 2.0 * p["H"] + 10.0 * d_max + 2.0 * max(lam, 1.0)
+    n_z = z_span / p["cg_dz"] + 1.0
+    n_species = 2 if p["phi0"] < 1.0 else 1
+    n_columns = 10 + 2 * n_species + 12
+    n_windows = min(p["t_end"] / p["cg_window"], n_samples / p["cg_every"]) + 2.0
+    n_profile_values = n_z * n_columns * n_windows
+    pairs = PAIRS_PER_PARTICLE * n_particles
+    memory = (MEMORY_BASELINE + BYTES_PER_PARTICLE * n_particles + BYTES_PER_PAIR * pairs
+              + BYTES_PER_SAMPLE * n_samples + BYTES_PER_PROFILE_VALUE * n_profile_values)
+    # outputs: final state and checkpoint (x2 while it is replaced), profiles, series
+    state_bytes = 40 * 8.0 * (n_flow + n_base) + 19 * 8.0 * pairs / 2
+    output = (3 * state_bytes + 2 * 8.0 * n_profile_values + 2 * 6 * 8.0 * n_samples + 2e6)
+    explanation = (f"{n_flow:.3g} flow + {n_base:.3g} base particles"
+                   + (f" ({n_prep:.3g} while the base settles)" if n_prep > n_flow + n_base
+                      else "")
+                   + f", ~{PAIRS_PER_PARTICLE:g} neighbour pairs each, {n_samples:.3g} samples, "
+                   f"{n_z:.3g} depth bins x {n_columns} columns x {n_windows:.3g} windows")
+    return {"n_particles": n_particles, "n_flow": n_flow, "n_base": n_base, "n_steps": n_steps,
+            "dt": dt, "n_samples": n_samples, "n_profile_values": n_profile_values,
+            "memory_bytes": memory, "output_bytes": output, "explanation": explanation}
+
+
+def machine_memory() -> float:
+    """Memory this process may use (bytes): the physical memory, or a smaller cgroup limit
+    (containers, Slurm jobs) or address-space limit."""
+    limits = []
+    try:
+        limits.append(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        pass
+    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = Path(f).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit() and int(text) < 2**60:
+            limits.append(int(text))
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft != resource.RLIM_INFINITY and soft > 0:
+            limits.append(soft)
+    except (ImportError, ValueError, OSError):
+        pass
+    return float(min(limits)) if limits else math.inf
+
+
+def _fmt_bytes(n: float) -> str:
+    if not math.isfinite(n):
+        return f"{n} bytes"
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.3g} {unit}"
+        n /= 1024.0
+    return f"{n:.3g} EiB"  # pragma: no cover
+
+
+class OutputFolderError(ValueError):
+    """The output folder cannot take a run's outputs (read-only, not a folder, too full)."""
+
+
+def check_output_folder(out_dir, need_bytes: float = 0.0, what: str = "the run") -> Path:
+    """Fail before any compute unless ``out_dir`` (or, if it does not exist yet, the folder it
+    would be made in) is a writable folder with at least ``need_bytes`` free.
+
+    The check writes and removes a small probe file (permissions alone do not show a
+    read-only file system, nor root's rights) and compares the free space with the estimate.
+    Nothing is created when the folder does not exist yet.
+    """
+    import shutil
+    import socket
+
+    out_dir = Path(out_dir)
+    where = out_dir
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    if not where.is_dir():
+        raise OutputFolderError(f"output folder {os.fspath(out_dir)!r}: {os.fspath(where)!r} "
+                                "exists and is not a folder")
+    probe = where / f".granflow-write-probe-{socket.gethostname()}-{os.getpid()}"
+    try:
+        with open(probe, "wb") as fh:
+            fh.write(b"\0" * 4096)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        raise OutputFolderError(
+            f"output folder {os.fspath(out_dir)!r} is not writable: writing in "
+            f"{os.fspath(where)!r} failed ({exc.strerror or exc}); {what} was not started") from None
+    finally:
+        try:
+            probe.unlink()
+        except OSError:
+            pass
+    free = shutil.disk_usage(where).free
+    if free < need_bytes:
+        raise OutputFolderError(
+            f"output folder {os.fspath(out_dir)!r} has {_fmt_bytes(free)} free, {what} needs "
+            f"about {_fmt_bytes(need_bytes)} (outputs and checkpoint): allowed at least that "
+            "much free space; free some space or choose another folder")
+    return where
 
 
 def chute_config(p: dict) -> ChuteConfig:
@@ -167,11 +401,28 @@ def load_params(path) -> dict:
     import yaml
 
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"parameter file {os.fspath(path)!r} does not exist")
-    with open(path) as fh:
-        data = yaml.safe_load(fh) or {}
-    return validate_params(data)
+    if not path.is_file():
+        raise FileNotFoundError(f"parameter file {os.fspath(path)!r} does not exist"
+                                + (" (it is a folder)" if path.is_dir() else ""))
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        text = str(exc)
+        raise ValueError(f"parameter file {os.fspath(path)!r} is not valid YAML: "
+                         f"{text if len(text) < 400 else text[:397] + '...'}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"parameter file {os.fspath(path)!r} is not UTF-8 text ({exc.reason} "
+                         f"at byte {exc.start})") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ValueError(f"parameter file {os.fspath(path)!r} holds a {type(data).__name__}, "
+                         "not a mapping of parameter names to values")
+    try:
+        return validate_params(data)
+    except ValueError as exc:
+        raise ValueError(f"parameter file {os.fspath(path)!r}: {exc}") from None
 
 
 def set_threads(threads: int | None):
@@ -333,7 +584,9 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
 
     p = validate_params(params)
     out_dir = Path(out_dir)
+    check_output_folder(out_dir, estimate_run_size(p)["output_bytes"])
     out_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(out_dir)
     set_threads(threads)
     cfg = chute_config(p)
     engine = p.get("engine", "numba")
@@ -346,15 +599,10 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                              f"engine, not {engine!r}")
         system, parent = restart_state(from_state, cfg)
     if ckpt.exists() and engine == "numba":  # resume: the run restores system and observers
-        system, _ = ParticleSystem.load(ckpt)
+        system, _ = load_state(ckpt, kind="checkpoint", remove_if_corrupt=True)
     elif from_state is None:  # a fresh run: build the chute (a restart has its system already)
         if base_file is not None:
-            base_file = Path(base_file)
-            if not base_file.exists():
-                raise FileNotFoundError(f"base file {os.fspath(base_file)!r} does not exist")
-            base = np.load(base_file)
-            if base.ndim != 2 or base.shape[1] != 3:
-                raise ValueError(f"base file {os.fspath(base_file)!r} does not hold an (M, 3) position array")
+            base = load_base_file(base_file)
         else:
             base = prepare_rough_base(BaseConfig(lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"],
                                                  seed=int(p["seed"]), base_layers=p["base_layers"]))
@@ -403,7 +651,11 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     run.observers.extend(extra_observers)
     extra_attrs = {}
     if lammps is None:
-        run.try_resume()
+        try:
+            run.try_resume()
+        except Exception as exc:  # observer states missing or unreadable: same as a corrupt file
+            raise _corrupt(ckpt, f"its observer states do not restore ({type(exc).__name__}: "
+                                 f"{exc})", "checkpoint", remove=True) from None
         run.run()
     else:
         try:
@@ -518,13 +770,123 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
     atomic_to_netcdf(ds, out_dir / "series.nc")
     atomic_to_netcdf(profiles, out_dir / "profiles.nc")
     save = getattr(run.system, "save", None)
+    written = [name for name in RUN_OUTPUTS if name != "final_state.npz"]
     if save is not None:
         save(out_dir / "final_state.npz")
+        written.append("final_state.npz")
+    # what the run wrote, so that a reader can tell a truncated or modified output
+    summary["outputs"] = {name: file_record(out_dir / name) for name in written}
     atomic_write_bytes(out_dir / "summary.json",
                        json.dumps(_finite_or_none(summary), indent=2, default=_json_default,
                                   allow_nan=False).encode())
     log.info("%s: %s", out_dir, final["explanation"])
     return dict(summary, profiles=profiles)
+
+
+#: the outputs of a run whose size and SHA-256 summary.json records (``outputs``)
+RUN_OUTPUTS = ("series.nc", "profiles.nc", "final_state.npz")
+
+
+def file_record(path) -> dict:
+    """Size and SHA-256 of a file (recorded in summary.json for each run output)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return {"bytes": Path(path).stat().st_size, "sha256": h.hexdigest()}
+
+
+class CorruptFileError(ValueError):
+    """A granflow file that cannot be read back (truncated, corrupt, of another format)."""
+
+    def __init__(self, path, message: str, removed: bool = False):
+        self.path = Path(path)
+        self.removed = removed
+        super().__init__(message)
+
+
+def _corrupt(path, problem: str, kind: str, remove: bool = False) -> CorruptFileError:
+    """The error for an unreadable ``kind`` file; with ``remove`` the file is deleted first (a
+    checkpoint or run output that a rerun recomputes) and the message says so."""
+    removed = False
+    if remove:
+        try:
+            Path(path).unlink()
+            removed = True
+        except OSError:
+            pass
+    what = {"checkpoint": "checkpoint", "state": "particle state file"}.get(kind, f"{kind} file")
+    tail = ""
+    if removed and kind == "checkpoint":
+        tail = "; removed it: run again to restart this run from t = 0"
+    elif removed:
+        tail = "; removed it: rerun the workflow to recompute this run"
+    return CorruptFileError(path, f"{what} {os.fspath(path)!r} {problem}{tail}", removed)
+
+
+def load_state(path, kind: str = "state", remove_if_corrupt: bool = False):
+    """:meth:`ParticleSystem.load` with errors that name the file and say what is wrong.
+
+    Returns (system, extra).  A missing file raises FileNotFoundError; an unreadable one
+    (truncated, not a .npz archive, a member that fails its CRC, missing arrays or metadata)
+    raises :class:`CorruptFileError` (a ValueError), after deleting it when
+    ``remove_if_corrupt`` (a checkpoint: the rerun then starts the run afresh).
+    """
+    import zipfile
+    import zlib
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{kind} file {os.fspath(path)!r} does not exist")
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if not magic:
+        raise _corrupt(path, "is empty (0 bytes)", kind, remove_if_corrupt)
+    if magic != b"PK\x03\x04":
+        raise _corrupt(path, f"is not a .npz archive (it starts with {magic!r}, not a zip "
+                             "header): truncated, overwritten or another format", kind,
+                       remove_if_corrupt)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            names = set(data.files)
+            for name in names:  # reads every member: a truncated or corrupt one fails here
+                data[name]
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError, zlib.error) as exc:
+        problem = str(exc) or type(exc).__name__
+        if isinstance(exc, zipfile.BadZipFile) or "zip" in problem.lower():
+            problem = f"is truncated or not a .npz archive ({problem})"
+        else:
+            problem = f"is unreadable ({type(exc).__name__}: {problem})"
+        raise _corrupt(path, problem, kind, remove_if_corrupt) from None
+    missing = sorted({"meta_json", *ParticleSystem._ARRAYS} - names) \
+        if hasattr(ParticleSystem, "_ARRAYS") else sorted({"meta_json"} - names)
+    if missing:
+        raise _corrupt(path, f"lacks the arrays {missing} of a particle state", kind,
+                       remove_if_corrupt)
+    try:
+        return ParticleSystem.load(path)
+    except Exception as exc:  # metadata that does not parse, arrays of the wrong shape, ...
+        raise _corrupt(path, f"does not restore a particle system ({type(exc).__name__}: "
+                             f"{exc})", kind, remove_if_corrupt) from None
+
+
+def load_base_file(base_file) -> np.ndarray:
+    """Positions (M, 3) of a prepared base (.npy), with errors naming the file."""
+    base_file = Path(base_file)
+    if not base_file.is_file():
+        raise FileNotFoundError(f"base file {os.fspath(base_file)!r} does not exist")
+    try:
+        base = np.load(base_file, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise CorruptFileError(base_file, f"base file {os.fspath(base_file)!r} is truncated or "
+                                          f"not a .npy array ({exc})") from None
+    if not isinstance(base, np.ndarray) or base.ndim != 2 or base.shape[1] != 3 \
+            or not np.issubdtype(base.dtype, np.floating) or not np.isfinite(base).all():
+        raise ValueError(f"base file {os.fspath(base_file)!r} does not hold an (M, 3) array of "
+                         "finite positions")
+    return base
 
 
 def _finite_or_none(obj):

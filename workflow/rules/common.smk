@@ -57,6 +57,27 @@ CONFIG_JSON = json.dumps({k: v for k, v in config.items() if k not in ("cluster"
                          sort_keys=True)
 
 
+# ----------------------------------------------------------------------------- preflight
+def preflight():
+    """Before any job: remove the temporaries that killed jobs left half-written under the
+    results (and library) folder; check that the results folder is writable with room for the
+    unfinished runs (a clear error now instead of jobs failing after their compute); and name
+    this Snakemake process in $GRANFLOW_WORKFLOW_PROCESS, so that the granflow jobs it starts
+    stop when it is killed instead of running on as orphans (granflow.cli.watch_workflow)."""
+    from granflow.campaign.config import check_results_folder
+    from granflow.cli import WORKFLOW_ENV, workflow_token
+    from granflow.provenance import remove_stale_temporaries_under
+
+    os.environ[WORKFLOW_ENV] = workflow_token()
+    if workflow.is_main_process:
+        for folder in dict.fromkeys((RESULTS, LIBRARY_DIR)):
+            remove_stale_temporaries_under(folder)
+        check_results_folder(config, RESULTS)
+
+
+preflight()
+
+
 # ----------------------------------------------------------------------------- cluster resources
 # Per-rule Slurm requests, from the `cluster` section of the configuration
 # (granflow.campaign.cluster).  With the Slurm executor they are fitted to the partition

@@ -153,12 +153,102 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
     return fit, spread, profile
 
 
-def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.0) -> dict:
-    """One campaign-table row (plus extras) from a finished run directory (see module doc)."""
+def _read_summary(path, remove_corrupt: bool = False) -> dict:
+    from ..simulate import _corrupt
+
+    if not path.is_file():
+        raise FileNotFoundError(f"summary file {str(path)!r} does not exist: the run has not "
+                                "finished")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            summ = json.load(fh)
+    except (ValueError, UnicodeDecodeError) as exc:  # JSONDecodeError is a ValueError
+        raise _corrupt(path, f"is not valid JSON, truncated or corrupt ({exc})", "summary",
+                       remove_corrupt) from None
+    if not isinstance(summ, dict) or "flow_state" not in summ:
+        raise _corrupt(path, "is not a run summary (no flow_state)", "summary", remove_corrupt)
+    return summ
+
+
+def verify_run_outputs(run_dir, remove_corrupt: bool = False) -> dict:
+    """Read back a finished run's outputs before using them; return its summary.
+
+    ``summary.json`` must parse; ``series.nc``, ``profiles.nc`` and ``final_state.npz`` must
+    exist, have the size and SHA-256 the run recorded in it (``outputs``; runs written before
+    that record are only read back) and open.  Anything else raises
+    :class:`granflow.simulate.CorruptFileError` (a ValueError; FileNotFoundError for a missing
+    output) naming the file and what is wrong.  With ``remove_corrupt`` the bad file and the
+    run's ``summary.json`` (which no longer describes what is on disk) are deleted first: the
+    summary is an input of the workflow's row rule, so the rerun recomputes this run -- and
+    only this run, whose simulation job writes them.
+    """
+    from ..simulate import CorruptFileError
+
+    run_dir = Path(run_dir)
+    summ = _read_summary(run_dir / "summary.json", remove_corrupt)
+    try:
+        _check_outputs(run_dir, summ, remove_corrupt)
+    except (CorruptFileError, FileNotFoundError) as exc:
+        if not remove_corrupt:
+            raise
+        try:
+            (run_dir / "summary.json").unlink()
+        except OSError:
+            raise exc from None
+        msg = str(exc).replace("; removed it:", "; removed it and the run's summary.json:")
+        if "removed it" not in msg:
+            msg += "; removed the run's summary.json: rerun the workflow to recompute this run"
+        if isinstance(exc, CorruptFileError):
+            raise CorruptFileError(exc.path, msg, True) from None
+        raise FileNotFoundError(msg) from None
+    return summ
+
+
+def _check_outputs(run_dir: Path, summ: dict, remove_corrupt: bool):
+    import xarray as xr
+
+    from ..simulate import RUN_OUTPUTS, _corrupt, file_record, load_state
+
+    recorded = summ.get("outputs") or {}
+    kinds = {"series.nc": "time-series", "profiles.nc": "profiles", "final_state.npz": "state"}
+    for name in RUN_OUTPUTS:
+        path = run_dir / name
+        kind = kinds.get(name, name)
+        if recorded and name not in recorded:  # the run wrote none (an ingest: no final state)
+            continue
+        if not path.is_file():
+            raise FileNotFoundError(f"{kind} file {str(path)!r} of a finished run is missing")
+        want = recorded.get(name)
+        if isinstance(want, dict) and "bytes" in want:
+            have = file_record(path)
+            if have["bytes"] != want["bytes"]:
+                raise _corrupt(path, f"is {have['bytes']} bytes, the run wrote {want['bytes']} "
+                                     "(truncated or replaced)", kind, remove_corrupt)
+            if have["sha256"] != want.get("sha256"):
+                raise _corrupt(path, "does not hold what the run wrote (its SHA-256 differs "
+                                     "from the one in summary.json): modified or corrupted",
+                               kind, remove_corrupt)
+        if name.endswith(".nc"):
+            try:
+                with xr.open_dataset(path) as ds:
+                    ds.load()
+            except Exception as exc:  # netCDF4/HDF5 raise OSError, RuntimeError, ValueError...
+                raise _corrupt(path, f"is not a readable netCDF file, truncated or corrupt "
+                                     f"({type(exc).__name__}: {exc})", kind,
+                               remove_corrupt) from None
+        else:
+            load_state(path, kind="state", remove_if_corrupt=remove_corrupt)
+
+
+def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.0,
+               remove_corrupt: bool = False) -> dict:
+    """One campaign-table row (plus extras) from a finished run directory (see module doc).
+
+    The run's outputs are read back first (:func:`verify_run_outputs`): a truncated or
+    corrupt one raises an error naming it (and is removed with ``remove_corrupt``)."""
     run_dir = Path(run_dir)
     point = parse_run_path(rel if rel is not None else run_dir.as_posix())
-    with open(run_dir / "summary.json") as fh:
-        summ = json.load(fh)
+    summ = verify_run_outputs(run_dir, remove_corrupt=remove_corrupt)
     avg = summ.get("depth_averages") or {}
     row = {"theta": point.theta, "H": point.H, "lam": point.lam, "sigma": point.sigma,
            "contact_law": point.law, "state": summ.get("flow_state", "undecided")}
@@ -195,17 +285,31 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
     return out
 
 
-def write_row(run_dir, out, rel=None, segregation_window: float = 100.0) -> dict:
-    res = derive_row(run_dir, rel, segregation_window)
+def write_row(run_dir, out, rel=None, segregation_window: float = 100.0,
+              remove_corrupt: bool = True) -> dict:
+    """The workflow's row step: :func:`derive_row` into the JSON file ``out``.  A corrupt run
+    output is removed (``remove_corrupt``), so that the rerun recomputes that run."""
+    res = derive_row(run_dir, rel, segregation_window, remove_corrupt=remove_corrupt)
     atomic_write_bytes(out, dumps(res).encode())
     return res
 
 
-def read_rows(paths) -> list[dict]:
+def read_rows(paths, remove_corrupt: bool = False) -> list[dict]:
+    """Row files written by :func:`write_row`; an unreadable one raises an error naming it
+    (and is removed with ``remove_corrupt``, so that the workflow recomputes it)."""
+    from ..simulate import _corrupt
+
     rows = []
     for p in paths:
-        with open(p) as fh:
-            rows.append(from_jsonable(json.load(fh)))
+        try:
+            with open(p, encoding="utf-8") as fh:
+                row = from_jsonable(json.load(fh))
+            if not isinstance(row, dict) or not isinstance(row.get("row"), dict):
+                raise ValueError("no 'row' mapping")
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise _corrupt(p, f"is not a campaign-table row file, truncated or corrupt ({exc})",
+                           "row", remove_corrupt) from None
+        rows.append(row)
     return rows
 
 
@@ -258,15 +362,23 @@ def table_dataset(table: pd.DataFrame, attrs=None, config=None):
 def read_table(path) -> pd.DataFrame:
     """Read a campaign table written by :func:`collect_table` (.nc or .csv)."""
     path = Path(path)
-    if path.suffix == ".csv":
-        df = pd.read_csv(path, keep_default_na=True)
-    else:
-        import xarray as xr
+    if not path.is_file():
+        raise FileNotFoundError(f"campaign table {str(path)!r} does not exist")
+    try:
+        if path.suffix == ".csv":
+            df = pd.read_csv(path, keep_default_na=True)
+        else:
+            import xarray as xr
 
-        with xr.open_dataset(path) as ds:
-            ds = ds.rename({n: v.attrs["campaign_column"] for n, v in ds.data_vars.items()
-                            if v.attrs.get("campaign_column", n) != n})
-            df = ds.to_dataframe().reset_index(drop=True)
+            with xr.open_dataset(path) as ds:
+                ds = ds.rename({n: v.attrs["campaign_column"] for n, v in ds.data_vars.items()
+                                if v.attrs.get("campaign_column", n) != n})
+                df = ds.to_dataframe().reset_index(drop=True)
+    except Exception as exc:  # netCDF4/HDF5/pandas parser errors of a truncated file
+        from ..simulate import CorruptFileError
+
+        raise CorruptFileError(path, f"campaign table {str(path)!r} is not readable, truncated "
+                                     f"or corrupt ({type(exc).__name__}: {exc})") from None
     for col in df.columns:
         if col in STRING_COLUMNS or col in _STRING_EXTRAS:
             df[col] = df[col].fillna("").astype(str).astype(object)
@@ -274,10 +386,12 @@ def read_table(path) -> pd.DataFrame:
 
 
 def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation=None,
-                  attrs=None, config=None) -> pd.DataFrame:
+                  attrs=None, config=None, remove_corrupt_rows: bool = True) -> pd.DataFrame:
     """Concatenate row files into the campaign table; write netCDF, CSV, excluded runs and the
-    per-run segregation fits (JSON list, input of the library's ``segregation`` kind)."""
-    results = sorted(read_rows(row_files), key=_sort_key)
+    per-run segregation fits (JSON list, input of the library's ``segregation`` kind).  An
+    unreadable row file is removed (``remove_corrupt_rows``: the workflow then recomputes it)
+    and raises an error naming it."""
+    results = sorted(read_rows(row_files, remove_corrupt=remove_corrupt_rows), key=_sort_key)
     seen, kept, excluded, seg = set(), [], [], []
     for r in results:
         run = r["row"]["run"]

@@ -12,6 +12,8 @@ theta in degrees, in (0, 90)``.
 
 from __future__ import annotations
 
+import math
+import os
 from pathlib import Path
 
 import yaml
@@ -23,8 +25,30 @@ MIN_PS_LAW_RATIOS = 3
 
 
 def load_yaml(path) -> dict:
-    with open(path) as fh:
-        return yaml.safe_load(fh) or {}
+    """Read a YAML configuration file (a mapping); errors name the file and what is wrong."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"configuration file {str(path)!r} does not exist"
+                                + (" (it is a folder)" if path.is_dir() else ""))
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"configuration file {str(path)!r} is not valid YAML: "
+                         f"{_short(str(exc), 400)}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"configuration file {str(path)!r} is not UTF-8 text ({exc.reason} at "
+                         f"byte {exc.start})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ValueError(f"configuration file {str(path)!r} holds a {type(data).__name__}, not "
+                         "a mapping of configuration keys")
+    return data
+
+
+def _short(text: str, n: int = 200) -> str:
+    return text if len(text) <= n else text[: n - 3] + "..."
 
 
 def _key(path) -> str:
@@ -40,7 +64,8 @@ def _describe(err) -> str:
     desc = s.get("description", "")
     if v == "additionalProperties":
         allowed = sorted((s.get("properties") or {}).keys())
-        extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
+        extra = (sorted(set(err.instance) - set(allowed), key=repr)
+                 if isinstance(err.instance, dict) else [])
         return (f"unknown key(s) {extra} in {_key(err.absolute_path)}; allowed keys: {allowed}")
     if v == "required":
         return f"{_key(err.absolute_path)}: {err.message}"
@@ -53,7 +78,8 @@ def _describe(err) -> str:
         "enum": f"must be one of {err.validator_value}",
         "type": f"must be of type {err.validator_value}",
     }.get(v, err.message)
-    return f"config key {where} = {err.instance!r}: {what}" + (f"; allowed: {desc}" if desc else "")
+    return (f"config key {where} = {_short(repr(err.instance))}: {what}"
+            + (f"; allowed: {desc}" if desc else ""))
 
 
 def schema_errors(config: dict, schema) -> list[str]:
@@ -66,6 +92,63 @@ def schema_errors(config: dict, schema) -> list[str]:
     validator = cls(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: list(map(str, e.absolute_path)))
     return [_describe(e) for e in errors]
+
+
+def non_finite_errors(config, path=()) -> list[str]:
+    """NaN and infinite numbers anywhere in ``config`` (JSON schema range checks let NaN
+    through: every comparison with NaN is false)."""
+    out = []
+    if isinstance(config, dict):
+        for k, v in config.items():
+            out += non_finite_errors(v, (*path, k))
+    elif isinstance(config, (list, tuple)):
+        for i, v in enumerate(config):
+            out += non_finite_errors(v, (*path, i))
+    elif isinstance(config, float) and not math.isfinite(config):
+        out.append(f"config key {_key(path)} = {config!r}: not a finite number; allowed: a "
+                   "finite number in the range the schema states for this key")
+    return out
+
+
+def run_errors(config: dict, check_machine: bool = True) -> list[str]:
+    """Every grid run of ``config`` (and the first and largest points of the adaptive hstop
+    search) checked as ``granflow simulate`` will check it (:func:`granflow.simulate.
+    validate_params`: ranges of derived values, number of time steps, memory), so that a run
+    that would be refused is refused before any job starts.  The memory limit is
+    ``cluster.resources.simulate.mem_mb`` when the configuration sets it (the job's share of a
+    cluster node), otherwise this machine's memory."""
+    from ..simulate import validate_params
+    from .grid import RunPoint, run_params
+
+    points = list(expand_runs(config))
+    chute = campaign_cfg(config, "chute")
+    search = chute.get("hstop_search") or {}
+    if enabled(config, "chute") and search.get("enabled"):
+        for law in chute.get("contact_law") or ["linear"]:
+            for lam in search.get("lambda") or chute.get("lambda") or [1.0]:
+                for theta, H in ((search.get("theta0", 21.0), search.get("H0", 4.0)),
+                                 (search.get("theta_max", 40.0), search.get("H_max", 40.0))):
+                    points.append(RunPoint("chute", str(law), float(lam), float(theta), float(H)))
+    mem_mb = (((config.get("cluster") or {}).get("resources") or {}).get("simulate") or {}
+              ).get("mem_mb")
+    first, count = {}, {}  # message -> first run with it, number of runs
+    for p in points:
+        params = run_params(config, p)
+        try:
+            checked = validate_params(dict(params), check_machine=check_machine and mem_mb is None)
+            if check_machine and mem_mb is not None:
+                from ..simulate import estimate_run_size
+
+                need = estimate_run_size(checked)["memory_bytes"]
+                if need > mem_mb * 1e6:
+                    raise ValueError(f"the run needs about {need / 1e6:.0f} MB of memory, more "
+                                     f"than cluster.resources.simulate.mem_mb = {mem_mb}; allowed:"
+                                     " a mem_mb request at least the run's estimate")
+        except ValueError as exc:
+            first.setdefault(str(exc), p.path)
+            count[str(exc)] = count.get(str(exc), 0) + 1
+    return [f"run {first[m]}: {m}" + (f" (and {count[m] - 1} more runs)" if count[m] > 1 else "")
+            for m in first]
 
 
 def semantic_errors(config: dict) -> list[str]:
@@ -168,11 +251,20 @@ def _time_errors(config: dict) -> list[str]:
     return out
 
 
-def check_config(config: dict, schema) -> dict:
-    """Raise ValueError listing every problem of ``config`` (schema, then cross-field checks)."""
-    errors = schema_errors(config, schema)
+def check_config(config: dict, schema, check_machine: bool = True) -> dict:
+    """Raise ValueError listing every problem of ``config`` (non-finite numbers, schema,
+    cross-field checks, then every run as ``granflow simulate`` checks it: :func:`run_errors`).
+    """
+    if not isinstance(config, dict):
+        raise ValueError("invalid campaign configuration:\n  the configuration is a "
+                         f"{type(config).__name__}, not a mapping of keys")
+    errors = non_finite_errors(config)
+    if not errors:
+        errors = schema_errors(config, schema)
     if not errors:
         errors = semantic_errors(config)
+    if not errors:
+        errors = run_errors(config, check_machine=check_machine)
     if errors:
         raise ValueError("invalid campaign configuration:\n  " + "\n  ".join(errors))
     return config
@@ -187,3 +279,21 @@ def default_schema_path() -> Path:
             return cand
     raise FileNotFoundError("workflow/schemas/config.schema.yaml not found above "
                             f"{here.parent}; pass the schema path explicitly")
+
+
+def check_results_folder(config: dict, results) -> float:
+    """Fail unless the campaign's results folder is writable and has room for the outputs of
+    the runs that are not finished yet (:func:`granflow.simulate.estimate_run_size`, summed;
+    runs with a ``summary.json`` count as done).  Creates nothing.  Returns the estimate."""
+    from ..simulate import check_output_folder, estimate_run_size, validate_params
+    from .grid import run_params
+
+    need, left = 0.0, 0
+    for p in expand_runs(config):
+        if os.path.exists(os.path.join(results, p.path, "summary.json")):
+            continue
+        params = validate_params(dict(run_params(config, p)), check_machine=False)
+        need += estimate_run_size(params)["output_bytes"]
+        left += 1
+    check_output_folder(results, need, what=f"the campaign ({left} runs left)")
+    return need
