@@ -699,9 +699,15 @@ if comparison is not None and comparison["switches"]:
 # distance travelled by the peak and the front, particles against the solver.
 
 # %%
+flow_closures = None
 if len(steady_runs):
     r = steady_runs.iloc[-1]
-    c = FlowClosures.from_library(lib, float(r["theta"]), allow_unidentified=True)
+    try:
+        flow_closures = FlowClosures.from_library(lib, float(r["theta"]), allow_unidentified=True)
+    except ValueError as err:  # a failed closure is refused even for inspection: say so
+        display(Markdown(f"No shallow-layer prediction: {err}"))
+if flow_closures is not None:
+    c = flow_closures
     x = np.arange(200) * 0.5 + 0.25
     h0 = r["h"] * (1.0 + 0.15 * np.exp(-((x - 20.0) / 6.0) ** 2))
     u0 = c.steady_froude(h0) * np.sqrt(c.g_cos * h0)
