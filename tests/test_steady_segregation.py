@@ -140,3 +140,68 @@ def test_bidisperse_run_records_the_indicator_and_the_segregation_verdict(tmp_pa
     assert lo - 0.2 <= s_end <= hi + 0.2
     if seg["steady"] and summ["flow_state"] in ("steady", "layered"):
         assert summ["profile_time_from"] >= seg["onset"] - 1e-9
+
+
+class _Series:
+    """Stand-in for the run's EnergySeries: the last sample the MonitorObserver reads."""
+
+    def __init__(self):
+        self.data = {"time": [0.0], "e_kin": [0.0], "e_ela": [1.0], "u_mean": [0.0]}
+
+
+def _segregating_run(growth_to, seg_tau, t_end=800.0, dt=0.5, seed=3, gate=True):
+    """Feed a MonitorObserver + SegregationObserver pair with a mixture whose kinetic energy
+    settles from a start-up transient, then rises by ``growth_to`` over t = 120 ... 320 (then
+    flat) while its indicator relaxes
+    towards -5 with time constant ``seg_tau``.  ``gate=False``: the earlier rule
+    (only the steady stop deferred).  Returns (stop time, reason)."""
+    from granflow.observers import MonitorObserver, SegregationObserver
+    from granflow.steady.monitor import SteadyStateMonitor
+
+    rng = np.random.default_rng(seed)
+    series = _Series()
+    energy = MonitorObserver(SteadyStateMonitor(t_cap=t_end, averaging_time=60.0, check_every=10.0,
+                                                min_accelerating_time=200.0), series)
+    seg = SegregationObserver(SegregationMonitor(averaging_time=60.0, check_every=10.0),
+                              energy=energy if gate else None)
+    if not gate:  # the earlier rule: only the steady stop waits for the segregated state
+        energy_stop = energy.should_stop
+
+        def steady_deferred(system):
+            stop, reason = energy_stop(system)
+            return (False, "") if stop and reason.startswith("steady") else (stop, reason)
+        energy.should_stop = steady_deferred
+    for t in np.arange(0.0, t_end + dt, dt):
+        ramp = np.clip((t - 120.0) / 200.0, 0.0, 1.0)
+        e_kin = (100.0 * (1.0 + np.exp(-t / 25.0)) * (1.0 + (growth_to - 1.0) * ramp)
+                 * (1.0 + 0.02 * rng.normal()))
+        for k, v in (("time", t), ("e_kin", e_kin), ("e_ela", 1.0), ("u_mean", np.sqrt(e_kin))):
+            series.data[k].append(v)
+        energy.sample(None)
+        seg.monitor.update(t, -5.0 * (1.0 - np.exp(-t / seg_tau))
+                           + 0.01 * rng.normal())
+        stop, reason = energy.should_stop(None)
+        if not stop:
+            stop, reason = seg.should_stop(type("S", (), {"time": t})())
+        if stop:
+            return t, reason
+    return t_end, "t_end"
+
+
+def test_mixture_speeding_up_while_it_segregates_is_not_stopped_as_accelerating():
+    """E_kin x2.5 while the large particles rise (x1.55 by t = 240 at the paper's species, sigma
+    0.75): the run goes on until the segregated state is steady and stops as steady."""
+    t_alone, reason_alone = _segregating_run(growth_to=2.5, seg_tau=800.0, gate=False)
+    assert reason_alone.startswith("accelerating") and t_alone < 400.0, reason_alone
+    t, reason = _segregating_run(growth_to=2.5, seg_tau=800.0)
+    # the indicator's drift per averaging window (60) falls below 10 % of the total + 0.05
+    # (SEGREGATION_REL_TOL, _ABS_TOL) at t = 800 ln(0.875 / 0.55) = 371
+    assert reason.startswith("steady"), reason
+    assert t > 371.0
+
+
+def test_runaway_mixture_still_stops_as_accelerating():
+    """Growth x10 (velocity x3.2) is decisive whatever segregation does."""
+    t, reason = _segregating_run(growth_to=40.0, seg_tau=600.0)
+    assert reason.startswith("accelerating"), reason
+    assert t < 500.0

@@ -374,6 +374,15 @@ class SteadyStateMonitor:
             return True
         return False
 
+    def reopen(self, why: str) -> None:
+        """Withdraw a stop decision so that the monitor goes on checking (a caller that defers
+        this stop, e.g. an accelerating verdict on a mixture that is still segregating, wants
+        the later verdicts rather than the first one kept)."""
+        d = self._decision
+        if d.stop:
+            self._set_decision(False, "continue", d.state, d.t, d.steady_start, d.confidence,
+                               f"{d.message}; deferred: {why}")
+
     def _set_decision(self, stop, reason, state, t, start, conf, msg) -> None:
         self._decision = MonitorDecision(bool(stop), reason, state, float(t),
                                          None if start is None else float(start), float(conf), msg)
