@@ -150,6 +150,26 @@ def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+def test_bisection_chains_all_start_at_once(tmp_path):
+    """Three hstop bisection chains (H = 2, 3, 5) are all in the plan from the start: three
+    first steps and three chain files, so that the chains run side by side (before the
+    per-chain rule, the collect rule's walk over the chains held each chain back until the
+    previous one was finished: one chain at a time on any number of cores)."""
+    overlay = tmp_path / "three-chains.yaml"
+    overlay.write_text("campaigns:\n  chute:\n    hstop_bisection:\n      H: [2.0, 3.0, 5.0]\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(work), "-n",
+           "--configfile", str(TINY), str(overlay)]
+    proc = _check(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
+    out = proc.stdout + proc.stderr
+    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    assert table.get("hstop_bisect_step") == "3", out[-3000:]
+    assert table.get("hstop_bisect_chain") == "3", out[-3000:]
+    for H in ("2", "3", "5"):
+        assert f"bisect/H~{H}/rep~0/step~0.json" in out, H
+
+
 def test_snakemake_report_of_the_tiny_campaign(tiny):
     """The README's `snakemake --report results/report.zip`, for the finished tiny campaign."""
     import zipfile

@@ -231,20 +231,41 @@ def bisect_step_args(wildcards, input):
     return f"--state {input.state} --summary {input.summary} --run {rel}"
 
 
+def bisect_chain_final(law, lam, H, k):
+    """(final state file, row files of its bracket runs) of one chain; raises Snakemake's
+    IncompleteCheckpointException while the chain is still running."""
+    i = 0
+    while True:
+        path = checkpoints.hstop_bisect_step.get(law=law, lam=lam, H=H, k=k,
+                                                 i=str(i)).output[0]
+        if HS.bisection_next_point(HS.read_state(path)) is None:
+            break
+        i += 1
+    return path, [os.path.join(run_dir(p), "row.json")
+                  for p in HS.bisection_runs(HS.read_state(path))]
+
+
+def bisect_chain_input(wildcards):
+    state, rows = bisect_chain_final(wildcards.law, wildcards.lam, wildcards.H, wildcards.k)
+    return {"state": state, "rows": rows}
+
+
+def bisect_chain_targets():
+    """One file per chain (made by the hstop_bisect_chain step), listed in the final targets; every chain
+    is then in the DAG from the start and the chains run side by side.  (Walking the chains
+    one after another in the collect rule's input function alone would hold each chain back
+    until the previous one is finished: the first unfinished checkpoint stops the walk.)"""
+    return [f"{RESULTS}/hstop/{law}/lambda~{lam}/bisect/H~{H}/rep~{k}/chain.json"
+            for law, lam, H, k in bisect_chains()]
+
+
 def bisect_inputs():
     """Final state files and row files of every bracket run of every chain."""
     states, rows = [], []
     for law, lam, H, k in bisect_chains():
-        i = 0
-        while True:
-            path = checkpoints.hstop_bisect_step.get(law=law, lam=lam, H=H, k=k,
-                                                     i=str(i)).output[0]
-            if HS.bisection_next_point(HS.read_state(path)) is None:
-                break
-            i += 1
-        states.append(path)
-        rows += [os.path.join(run_dir(p), "row.json")
-                 for p in HS.bisection_runs(HS.read_state(path))]
+        state, chain_rows = bisect_chain_final(law, lam, H, k)
+        states.append(state)
+        rows += chain_rows
     return states, rows
 
 
@@ -261,6 +282,7 @@ def final_targets():
     # the grid rows are listed too, so that grid runs start at once, side by side with the
     # hstop-search chain (whose checkpoints defer the collect rule's input)
     out = [os.path.join(run_dir(p), "row.json") for p in GRID_RUNS]
+    out += bisect_chain_targets()
     out += [f"{RESULTS}/closures.nc", f"{RESULTS}/closures.csv", f"{RESULTS}/closures.json"]
     if REPORT_ON:
         out.append(f"{RESULTS}/report.html")

@@ -30,7 +30,9 @@ checkpoint hstop_step:
 # writes the initial state (first angle: the prior curve's theta_stop(H)); step i records the
 # flow state of the bracket run state i-1 proposed (bracket/<law>/lambda~L/theta~T/H~H, a chute
 # run that stops as soon as it is decisively flowing) and proposes the next angle, until the
-# bracket is `tolerance` wide.  Chains at different H are independent, so they run side by side.
+# bracket is `tolerance` wide.  Chains at different H are independent, so they run side by side:
+# rule hstop_bisect_chain gives each chain a file of fixed name (its final state) that the final
+# targets list, so that every chain enters the DAG at once.
 
 
 checkpoint hstop_bisect_step:
@@ -49,3 +51,20 @@ checkpoint hstop_bisect_step:
     shell:
         "{params.gf} campaign hstop-bisect --law {wildcards.law} --lam {wildcards.lam}"
         " --H {wildcards.H} --replicate {wildcards.k} {params.args} --out {output} > {log} 2>&1"
+
+
+rule hstop_bisect_chain:
+    input:
+        unpack(bisect_chain_input),
+    output:
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/rep~{{k}}/chain.json",
+    log:
+        f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/rep~{{k}}/chain.log",
+    params:
+        # via params, as in rule collect: in a dry run the unfinished chain has no `state` yet
+        state=lambda wc, input: input.get("state", ""),
+    localrule: True
+    conda:
+        CONDA_ENV
+    shell:
+        "cp {params.state} {output} > {log} 2>&1"
