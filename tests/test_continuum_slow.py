@@ -1,6 +1,8 @@
 """Continuum models against particle runs the closure library was not fitted on (slow).
 
-Needs the default campaign (``snakemake --cores 2``, ``results/default``) and the comparison
+Needs the soft-species campaign the checks were built on (``snakemake --cores 2 --configfile
+config/continuum-soft.yaml``, ``results/continuum-soft``: the default campaign before it moved to
+the paper's species; it has steady runs at theta 24-28, H 6-10 to restart from) and the comparison
 runs of :mod:`granflow.continuum.experiments` under ``results/continuum`` (switch runs, the long
 chute); the runs missing are made here (soft species t_c = 0.02, 10 x 5 boxes; about 15 min on
 2 shared cores), then every comparison is computed afresh from the run folders.  Tolerances of
@@ -23,7 +25,7 @@ from granflow.continuum import experiments as ex
 pytestmark = pytest.mark.slow
 
 REPO = Path(__file__).resolve().parents[1]
-CAMPAIGN = REPO / "results" / "default"
+CAMPAIGN = REPO / "results" / "continuum-soft"
 OUT = REPO / "results" / "continuum"
 RUNS = CAMPAIGN / "chute" / "linear" / "lambda~1"
 #: (parent theta, H, child theta, t_end): up and down, thick (H = 10) and thin (H = 6, 8);
@@ -40,7 +42,8 @@ def _name(th1, H, th2):
 @pytest.fixture(scope="module")
 def comparison():
     if not (CAMPAIGN / "closures.json").exists():
-        pytest.skip("needs the default campaign: snakemake --cores 2")
+        pytest.skip("needs the soft-species campaign: "
+                    "snakemake --cores 2 --configfile config/continuum-soft.yaml")
     dirs = []
     for th1, H, th2, t_end in SWITCHES:
         d = OUT / "switch" / _name(th1, H, th2)
