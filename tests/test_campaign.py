@@ -86,7 +86,8 @@ def test_default_campaign_covers_every_closure():
     assert bis["enabled"] and len(bis["H"]) >= 5 and min(bis["H"]) <= 2 and max(bis["H"]) >= 12
     # flow rule from steady runs at several heights; density needs h > 6
     assert len({r.H for r in chute if r.H >= 10}) >= 2
-    assert all(len({r.theta for r in chute if r.H == H}) >= 3 for H in {r.H for r in chute})
+    assert all(len({r.theta for r in chute if r.H == H}) >= 2 for H in {r.H for r in chute})
+    assert len({r.theta for r in chute}) >= 3
     assert len({r.sigma for r in seg}) >= 3 and all(r.sigma < 1 for r in seg)
     # the paper's contact species: no soft-species bias to state
     from granflow.campaign.reductions import reductions_vs_paper

@@ -190,11 +190,11 @@ def test_running_one_chute_block(tmp_path):
 
 
 @pytest.mark.parametrize("cmd,configfile,n_simulate", [
-    (".venv/bin/snakemake --cores 2", None, 9),  # 6 steady chute + 3 segregation (the bracket
+    (".venv/bin/snakemake --cores 2", None, 8),  # 5 steady chute + 3 segregation (the bracket
     # runs of the bisection chains are planned as the chains go)
     (".venv/bin/snakemake --cores 2 --configfile config/segregation-sweep.yaml", None, 5),
     (".venv/bin/snakemake --cores 2 --configfile config/test-tiny-lammps.yaml", None, 6),
-    (".venv/bin/snakemake --workflow-profile profiles/local", None, 9)])
+    (".venv/bin/snakemake --workflow-profile profiles/local", None, 8)])
 def test_campaign_commands_plan_their_runs(cmd, configfile, n_simulate, tmp_path):
     """The README's campaign commands, as dry runs in a scratch directory: they parse, pass the
     configuration checks and plan the campaign's runs."""
@@ -230,7 +230,7 @@ def test_campaign_expand_lists_the_grid():
     out = _run(_venv(".venv/bin/granflow campaign expand config/config.yaml"), REPO)
     runs = [line for line in out.splitlines() if re.match(r"^results/default/(chute|segregation)/", line)]
     expected = G.expand_runs(load_yaml(REPO / "config" / "config.yaml"))
-    assert len(runs) == len(expected) == 9, out[-2000:]
+    assert len(runs) == len(expected) == 8, out[-2000:]
 
 
 def test_cluster_extra_names_the_installed_plugin():
