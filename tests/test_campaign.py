@@ -95,6 +95,7 @@ def test_default_campaign_covers_every_closure():
     assert cfg["species"]["t_c"] == 0.005
     text = reductions_vs_paper(cfg)
     assert "collision time" not in text and "chute box 10 x 5" in text
+    assert "hstop brackets from bisection chains at H = 1.5, 2, 3, 5, 8, 13 (0.5 deg wide)" in text
     assert "measured bias" not in text
     # ... a softer species carries the bias measured against it (F at 23 deg: 0.1761 vs 0.1250)
     soft = dict(cfg, species=dict(cfg["species"], t_c=0.02))

@@ -84,7 +84,13 @@ def config_differences(config: dict) -> list[str]:
         if lams is not None and sorted(map(float, lams)) != sorted(PAPER["lambda"]):
             out.append(f"lambda = {_fmt(list(lams))} (paper 0, 1/2, 2/3, 5/6, 1, 2)")
         hs = chute.get("hstop_search") or {}
-        if not hs.get("enabled", False):
+        bis = chute.get("hstop_bisection") or {}
+        if bis.get("enabled", False) and not hs.get("enabled", False):
+            tol = bis.get("tolerance")
+            out.append(f"hstop brackets from bisection chains at H = {_fmt(list(bis.get('H') or []))}"
+                       + (f" ({tol:g} deg wide)" if tol is not None else "")
+                       + " instead of the paper's adaptive search")
+        elif not hs.get("enabled", False):
             out.append("hstop brackets from a fixed (theta, H) grid instead of the paper's "
                        "adaptive search")
     seg = camps.get("segregation", {}) or {}
