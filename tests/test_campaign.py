@@ -97,6 +97,11 @@ def test_default_campaign_covers_every_closure():
     assert "collision time" not in text and "chute box 10 x 5" in text
     assert "hstop brackets from bisection chains at H = 1.5, 2, 3, 5, 8, 13 (0.5 deg wide)" in text
     assert "measured bias" not in text
+    # the shallow segregation sweep carries the measured effect of its depth on Ps
+    assert "the depth sets Ps, not the box length or the stiffness" in text
+    deep = dict(cfg, campaigns=dict(cfg["campaigns"], segregation=dict(
+        cfg["campaigns"]["segregation"], H=24.0)))
+    assert "the depth sets Ps" not in reductions_vs_paper(deep)
     # ... a softer species carries the bias measured against it (F at 23 deg: 0.1761 vs 0.1250)
     soft = dict(cfg, species=dict(cfg["species"], t_c=0.02))
     text = reductions_vs_paper(soft)

@@ -110,3 +110,33 @@ def soft_species_note(t_c: float) -> str:
             f"{max(dal):+.0f} %, hstop bracket centres {min(shifts):+.2f} to {max(shifts):+.2f} deg "
             "(granflow.reference.SOFT_SPECIES_EFFECT); larger than most stated stderrs: use the "
             "paper's species (config/reference-lambda1.yaml) for numbers to compare with the paper")
+
+
+#: Measured effect of the segregation set-up's reductions on Ps (T-eq. 28 fitted to one run's
+#: steady phi(z), stderr of the mean over decorrelated windows) at sigma = 0.6, 25 deg, the
+#: paper's species, rough base of fixed small particles (granflow at commit ef27ba9,
+#: 2026-11-23): (box length, filling height, t_c) -> Ps.  The paper's law at sigma = 0.6 gives
+#: 7.12 (83.3 x 5 box, depth 24).  Depth is what moves Ps; box length and stiffness little.
+#: The depth-16 run was integrated to t = 800 (its segregated state levels off at t ~ 590); the
+#: segregated-state stop rule had stopped it at t = 361 with Ps 5.89, still segregating.
+SEGREGATION_REDUCTION_EFFECT = {
+    "sigma": 0.6,
+    "Ps": {(10.0, 8.0, 0.005): (14.13, 0.65), (40.0, 8.0, 0.005): (12.35, 0.55),
+           (10.0, 16.0, 0.005): (8.41, 0.10), (10.0, 8.0, 0.02): (14.4, None)},
+}
+
+
+def segregation_reduction_note(Lx: float, H: float) -> str:
+    """What :data:`SEGREGATION_REDUCTION_EFFECT` says a segregation sweep at box length ``Lx``
+    and filling height ``H`` inherits ('' at the paper's depth 24)."""
+    if math.isclose(float(H), 24.0, rel_tol=1e-6):
+        return ""
+    ps = SEGREGATION_REDUCTION_EFFECT["Ps"]
+    (p8, s8), (pl, sl) = ps[(10.0, 8.0, 0.005)], ps[(40.0, 8.0, 0.005)]
+    deep = ps[(10.0, 16.0, 0.005)]
+    return (f"measured at sigma = 0.6, 25 deg, the paper's species: Ps {p8:g} +- {s8:g} at depth 8 in a "
+            f"10 x 5 box, {pl:g} +- {sl:g} in a 40 x 5 box, {deep[0]:g} +- {deep[1]:g} at depth 16 "
+            f"(paper law: 7.12 at depth 24, 83.3 x 5); {ps[(10.0, 8.0, 0.02)][0]:g} at depth 8 with "
+            "t_c = 0.02: the depth sets Ps, not the box length or the stiffness "
+            "(granflow.reference.SEGREGATION_REDUCTION_EFFECT); Ps and Pmax of a shallower sweep "
+            "are not the paper's")

@@ -101,6 +101,11 @@ def config_differences(config: dict) -> list[str]:
             out.append(f"segregation box {_fmt(box[0])} x {_fmt(box[1])} (paper 83.3 x 5)")
         if "H" in seg and not _same(seg["H"], PAPER["segregation_H"]):
             out.append(f"segregation filling height {_fmt(seg['H'])} (paper 24)")
+            from ..reference import segregation_reduction_note
+
+            note = segregation_reduction_note(seg.get("Lx", 10.0), seg["H"])
+            if note:
+                out.append(note)
         if "theta" in seg and not _same(seg["theta"], PAPER["segregation_theta"]):
             out.append(f"segregation at {_fmt(seg['theta'])} deg (paper 25)")
         sn = dict(nu, **(seg.get("numerics") or {}))
