@@ -1,0 +1,72 @@
+"""The campaign summaries under benchmarks/ (paper_table.py, campaign_cost.py) on inputs with
+known answers."""
+
+import importlib.util
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_paper_table_applies_the_two_stderr_or_five_percent_rule():
+    pt = _load("paper_table")
+    rows = [
+        # identified, 1.5 stderr off: agrees
+        dict(kind="hstop", **{"lambda": 1.0}, parameter="delta1", value=17.708 + 0.15, stderr=0.1,
+             parameter_status="identified", message=""),
+        # identified, 3 stderr but within 5 %: agrees (the looser rule)
+        dict(kind="hstop", **{"lambda": 1.0}, parameter="delta2", value=32.78 * 1.04, stderr=0.3,
+             parameter_status="identified", message=""),
+        # on the value, but not identified: never counts
+        dict(kind="hstop", **{"lambda": 1.0}, parameter="A", value=3.355, stderr=9.0,
+             parameter_status="unidentified", message=""),
+        # identified, 10 % and 5 stderr off: disagrees
+        dict(kind="flow_rule", **{"lambda": 1.0}, parameter="beta", value=0.196 * 1.1,
+             stderr=0.0039, parameter_status="identified", message=""),
+        # the reduced linear density against Eq. 52 at its reference angle
+        dict(kind="density", **{"lambda": math.nan}, parameter="nu_ref", value=0.5492, stderr=0.001,
+             parameter_status="identified",
+             message="linear form (rho_c/rho_p = nu_ref + dnu_dtheta (theta - 26.4)) fitted"),
+        # no paper value (Eq. 38): left out
+        dict(kind="hstop_eq38", **{"lambda": 1.0}, parameter="delta1", value=20.0, stderr=1.0,
+             parameter_status="identified", message=""),
+    ]
+    out = {(r["closure"], r["parameter"]): r for r in pt.paper_rows(pd.DataFrame(rows))}
+    assert set(out) == {("hstop", "delta1"), ("hstop", "delta2"), ("hstop", "A"),
+                        ("flow_rule", "beta"), ("density", "nu_ref")}
+    assert out[("hstop", "delta1")]["agrees"] and out[("hstop", "delta1")]["z"] == pytest.approx(1.5)
+    assert out[("hstop", "delta2")]["agrees"]
+    assert not out[("hstop", "A")]["agrees"]
+    assert not out[("flow_rule", "beta")]["agrees"]
+    # Eq. 52: 0.5985 - exp((26.4 - 40.85) / 4.8)
+    assert out[("density", "nu_ref")]["paper"] == pytest.approx(
+        0.5985 - math.exp((26.4 - 40.85) / 4.8), rel=1e-12)
+
+
+def test_campaign_cost_sums_the_runs_last_log_lines(tmp_path):
+    cc = _load("campaign_cost")
+    lines = {"chute/linear/lambda~1/theta~24/H~10": "at t = 221 (500 flow particles, 87.3 s wall)",
+             "chute/linear/lambda~1/theta~26/H~10": "at t = 161 (500 flow particles, 58.1 s wall)",
+             "bracket/linear/lambda~1/theta~28.1/H~2": "at t = 131 (100 flow particles, 16.8 s wall)",
+             "chute/linear/lambda~1/theta~28/H~10": None}  # still running: no final line
+    for d, last in lines.items():
+        p = tmp_path / d
+        p.mkdir(parents=True)
+        text = "2026-11-23 granflow.engine.run INFO: t = 10 / 400\n"
+        (p / "simulate.log").write_text(text + (f"{d}: steady (...) {last}\n" if last else ""))
+    rows = cc.run_costs(tmp_path)
+    assert len(rows) == 3
+    chute = [r for r in rows if r[0] == "chute"]
+    assert sum(r[4] for r in chute) == pytest.approx(87.3 + 58.1)
+    assert sum(r[2] for r in chute) == pytest.approx(221 + 161)
+    assert {r[1] for r in rows} == {"10", "2"} and all(r[3] in (500, 100) for r in rows)
