@@ -126,9 +126,9 @@ SEGREGATION_REDUCTION_EFFECT = {
 }
 
 
-def segregation_reduction_note(Lx: float, H: float) -> str:
-    """What :data:`SEGREGATION_REDUCTION_EFFECT` says a segregation sweep at box length ``Lx``
-    and filling height ``H`` inherits ('' at the paper's depth 24)."""
+def segregation_reduction_note(H: float) -> str:
+    """What :data:`SEGREGATION_REDUCTION_EFFECT` says a segregation sweep at filling height ``H``
+    inherits ('' at the paper's depth 24)."""
     if math.isclose(float(H), 24.0, rel_tol=1e-6):
         return ""
     ps = SEGREGATION_REDUCTION_EFFECT["Ps"]

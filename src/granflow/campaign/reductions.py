@@ -103,7 +103,7 @@ def config_differences(config: dict) -> list[str]:
             out.append(f"segregation filling height {_fmt(seg['H'])} (paper 24)")
             from ..reference import segregation_reduction_note
 
-            note = segregation_reduction_note(seg.get("Lx", 10.0), seg["H"])
+            note = segregation_reduction_note(seg["H"])
             if note:
                 out.append(note)
         if "theta" in seg and not _same(seg["theta"], PAPER["segregation_theta"]):
