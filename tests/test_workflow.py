@@ -170,6 +170,30 @@ def test_bisection_chains_all_start_at_once(tmp_path):
         assert f"bisect/H~{H}/rep~0/step~0.json" in out, H
 
 
+def test_long_sequential_work_is_scheduled_first(tmp_path):
+    """Priorities in the plan of the tiny campaign: segregation runs (slowest sigma first) above
+    hstop chain steps above steady runs (thick first) -- longest-processing-time order, so that
+    a campaign does not end on one core running the last chain alone."""
+    proc = _check(snakemake(tmp_path, "-n", timeout=300))
+    out = proc.stdout + proc.stderr
+    prio = {}
+    for block in re.split(r"\n(?=(?:local)?(?:rule|checkpoint) )", out):
+        head = block.split("\n", 1)[0]
+        m = re.search(r"^\s+priority: ([0-9.]+)$", block, re.M)
+        w = re.search(r"^\s+wildcards: (.*)$", block, re.M)
+        if head.split()[-1].rstrip(":") in ("simulate", "hstop_step", "hstop_bisect_step"):
+            prio[(head.split()[-1].rstrip(":"), w.group(1) if w else "")] = \
+                float(m.group(1)) if m else 0.0
+    seg = {k[1]: v for k, v in prio.items() if "kind=segregation" in k[1]}
+    chute = {k[1]: v for k, v in prio.items() if "kind=chute" in k[1]}
+    assert seg and chute, out[-3000:]
+    assert min(seg.values()) > max(chute.values())
+    by_sigma = sorted(seg.items(), key=lambda kv: float(re.search(r"sigma~([0-9.]+)", kv[0])[1]))
+    assert [v for _, v in by_sigma] == sorted(v for _, v in by_sigma)  # sigma near 1 first
+    steps = [v for (rule, _), v in prio.items() if rule == "hstop_step"]
+    assert steps and min(steps) >= 1 > max(chute.values()) and max(steps) < min(seg.values())
+
+
 def test_snakemake_report_of_the_tiny_campaign(tiny):
     """The README's `snakemake --report results/report.zip`, for the finished tiny campaign."""
     import zipfile

@@ -16,6 +16,8 @@ checkpoint hstop_step:
     params:
         gf=GRANFLOW,
         args=hstop_step_args,
+    # the search is sequential: its next step is placed as soon as its run ends
+    priority: 1
     localrule: True
     conda:
         CONDA_ENV
@@ -45,6 +47,8 @@ checkpoint hstop_bisect_step:
     params:
         gf=GRANFLOW,
         args=bisect_step_args,
+    # a chain's next step is placed as soon as its run ends (the chains are sequential)
+    priority: 1
     localrule: True
     conda:
         CONDA_ENV

@@ -30,6 +30,8 @@ rule simulate:
         values=run_params_json,
         out=dir_of,
     threads: cluster_threads("simulate")
+    # longest sequential work first: segregation, then hstop chains, then steady runs
+    priority: simulate_priority
     resources:
         **cluster_resources("simulate"),
     conda:
