@@ -294,6 +294,7 @@ def test_default_campaign_claims_match_the_configuration():
     assert f"a {len(seg['sigma'])}-ratio segregation sweep" in para
     assert f"a {chute['Lx']:g} x {chute['Ly']:g} box" in para
     assert f"in a {seg['Lx']:g} x {seg['Ly']:g} box" in para
+    assert f"(cap t = {seg['numerics']['t_end']:g};" in para
     assert f"a {c['base']['layers']:g}-layer base" in para
     assert f"t_c = {c['species']['t_c']:g}" in para
     assert chute["lambda"] == [1.0] and "lambda = 1 only" in para
