@@ -61,9 +61,12 @@ def test_restart_at_a_new_inclination_names_its_parent(parent, tmp_path):
     # the first sample is the parent's last one; then the steeper slope accelerates the layer
     assert float(ds.u_mean[0]) == float(parent_series.u_mean[-1])
     t = ds.t.values
-    early = t <= 1.0
+    # fitted over the first 0.1 time units, before the layer's friction has responded: over
+    # t <= 1 the difference depends on the trajectory's last bits (0.17-0.92 of the gravity
+    # term over 15 parent seeds, 4 of them below the 50 % bound), over t <= 0.1 it is 0.73-0.91
+    early = t <= 0.1 + 1e-9
     slope = np.polyfit(t[early], ds.u_mean.values[early], 1)[0]
-    same = simulate(dict(BASE, theta=26.0, t_end=1.0), tmp_path / "same26", from_state=state)
+    same = simulate(dict(BASE, theta=26.0, t_end=0.1), tmp_path / "same26", from_state=state)
     s26 = same["run"].series.arrays()
     slope26 = np.polyfit(s26["time"], s26["u_mean"], 1)[0]
     # extra downslope gravity g (sin 30 - sin 26) = 0.06 speeds the layer up at once

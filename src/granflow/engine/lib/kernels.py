@@ -46,7 +46,13 @@ depend on when the lists are rebuilt (nor on the skin).
 
 Hot loops use unsigned indices (numba adds negative-index handling to signed ones) and
 ``error_model="numpy"`` (no zero-division checks: a zero distance gives NaN, which the
-non-finite guard reports).  No fast-math: the results stay bitwise reproducible across machines.
+non-finite guard reports).  The contact maths (:func:`pair_pass` with the inlined scalar law,
+:func:`_linear_maths`) is compiled with the fast-math flags CONTACT_FASTMATH: fused multiply-add
+and no signed zeros, but neither 'nnan'/'ninf' (the guards) nor 'reassoc' (the summation order
+is fixed); divisions by r and by k_t are one reciprocal each.  The numbers are the same for any
+thread count and skin, and from run to run and after a kill and resume on the same machine and
+software; across CPUs (with or without FMA) or LLVM versions they may differ in the last bits.
+The integration (:func:`particle_pass`, including the flat-wall contact) has no fast-math.
 """
 
 from __future__ import annotations
@@ -80,6 +86,12 @@ PAIR_BLOCK = 512
 #: Marks the step API of issue 15 (used by benchmarks/bench_engine_profile.py).
 STEP_API = 1
 RELEASE_FRACTION = 0.5
+#: LLVM fast-math flags of the contact maths (pair pass, vectorised linear law): fused
+#: multiply-add ('contract'), no signed zeros, reciprocal multiplication ('arcp': no effect
+#: beside the explicit reciprocals on the benchmark chute, same numbers without it).  Not
+#: 'nnan' / 'ninf' (the non-finite guards must see NaN and inf) and not 'reassoc' (the order of
+#: every sum is what makes the numbers independent of the thread count).
+CONTACT_FASTMATH = {"contract", "arcp", "nsz"}
 
 
 @njit(cache=True, inline="always")
@@ -163,7 +175,9 @@ def _contact_force(nx, ny, nz, r, ri, rj, vi, vj, wi, wj, m_ij, law, coef, sprin
         kt *= scale
         gt *= scale
         fn = kn * delta - gn * vn
-        e_el = 0.4 * kn * delta * delta  # int_0^delta k sqrt(x/d) x dx = (2/5) k sqrt(delta/d) delta^2
+        # elastic energy ke de^2: int_0^delta k sqrt(x/d) x dx = (2/5) k sqrt(delta/d) delta^2
+        ke = 0.4 * kn
+        de = delta
     elif law == LAW_PLASTIC:
         k1 = kn
         k2 = m_ij * k2_hat
@@ -176,13 +190,12 @@ def _contact_force(nx, ny, nz, r, ri, rj, vi, vj, wi, wj, m_ij, law, coef, sprin
             fn = k2 * delta_e
         else:
             fn = 0.0
-        if delta_e > 0.0:
-            e_el = 0.5 * k2 * delta_e * delta_e
-        else:
-            e_el = 0.0
+        ke = 0.5 * k2 if delta_e > 0.0 else 0.0
+        de = delta_e if delta_e > 0.0 else 0.0
     else:
         fn = kn * delta - gn * vn
-        e_el = 0.5 * kn * delta * delta
+        ke = 0.5 * kn
+        de = delta
 
     # tangential spring: rotate into the current tangent plane keeping its length (Eq. 9)
     s2 = sx * sx + sy * sy + sz * sz
@@ -216,10 +229,13 @@ def _contact_force(nx, ny, nz, r, ri, rj, vi, vj, wi, wj, m_ij, law, coef, sprin
         fty *= c
         ftz *= c
         if kt > 0.0:
-            sx = -(ftx + gt * vtx) / kt
-            sy = -(fty + gt * vty) / kt
-            sz = -(ftz + gt * vtz) / kt
-    e_el += 0.5 * kt * (sx * sx + sy * sy + sz * sz)
+            inv_kt = 1.0 / kt  # one division for the three components
+            sx = -(ftx + gt * vtx) * inv_kt
+            sy = -(fty + gt * vty) * inv_kt
+            sz = -(ftz + gt * vtz) * inv_kt
+    # elastic energy in one expression, in one place, for every law (the vectorised linear law
+    # writes the same expression: the same multiply-add fusion, the same numbers)
+    e_el = ke * de * de + 0.5 * kt * (sx * sx + sy * sy + sz * sz)
 
     fx = fn * nx + ftx
     fy = fn * ny + fty
@@ -296,9 +312,10 @@ def _pair_contact(p, q, pos, vel, omega, vel_h, omega_h, radius, ptype, box, pi,
     ti = ptype[i]
     tj = ptype[j]
     m_ij = mred[p]
-    nx = dx / r
-    ny = dy / r
-    nz = dz / r
+    inv_r = 1.0 / r  # one division for the three components of the normal
+    nx = dx * inv_r
+    ny = dy * inv_r
+    nz = dz * inv_r
     bi = -(radius[i] - 0.5 * (radius[i] + radius[j] - r))
     bj = radius[j] - 0.5 * (radius[i] + radius[j] - r)
     # relative contact-point displacement over the step (mid-step velocities)
@@ -358,7 +375,9 @@ def _pair_contact(p, q, pos, vel, omega, vel_h, omega_h, radius, ptype, box, pi,
 # apart: compile-time constant distances, so the maths loop vectorises without alias checks),
 # the maths runs over the chunk in SIMD form (no branches: both sides of every choice are
 # computed and selected), and the results are scattered back.  Same operations in the same
-# order as :func:`_contact_force`: the results are bitwise those of the scalar path.
+# order as :func:`_contact_force`, with the same fast-math flags: the results are bitwise those
+# of the scalar path (the elastic energy is one expression in both, so that the multiply-add
+# fusion is the same; tests/test_engine_threads.py checks it).
 CHUNK = 128
 CHUNK_STRIDE = CHUNK + 3   # not a power of two: the work rows do not share cache sets
 (W_DX, W_DY, W_DZ, W_RI, W_RJ, W_M, W_KN, W_GN, W_KT, W_GT, W_MU, W_VI, W_VJ, W_WI, W_WJ,
@@ -402,7 +421,7 @@ def _gather_linear(work, tid, scratch, q0, m, pos, vel, omega, vel_h, omega_h, r
             w[np.uint64((W_S + c) * CHUNK_STRIDE) + k] = hist_t[p, c]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=CONTACT_FASTMATH)
 def _linear_maths(work, tid, m, dt, update_history):
     """The linear contact law (:func:`_contact_force`, law LINEAR, after :func:`_pair_contact`'s
     geometry) over a chunk of the work row, in branch-free form."""
@@ -416,9 +435,10 @@ def _linear_maths(work, tid, m, dt, update_history):
         m_ij = w[np.uint64(W_M * CHUNK_STRIDE) + k]
         r2 = dx * dx + dy * dy + dz * dz
         r = np.sqrt(r2)
-        nx = dx / r
-        ny = dy / r
-        nz = dz / r
+        inv_r = 1.0 / r
+        nx = dx * inv_r
+        ny = dy * inv_r
+        nz = dz * inv_r
         bi = -(ri - 0.5 * (ri + rj - r))
         bj = rj - 0.5 * (ri + rj - r)
         whix = w[np.uint64(W_WHI * CHUNK_STRIDE) + k]
@@ -464,7 +484,6 @@ def _linear_maths(work, tid, m, dt, update_history):
         kt = m_ij * w[np.uint64(W_KT * CHUNK_STRIDE) + k]
         gt = m_ij * w[np.uint64(W_GT * CHUNK_STRIDE) + k]
         fn = kn * delta - gn * vn
-        e_el = 0.5 * kn * delta * delta
         # spring rotated into the tangent plane keeping its length (s2 > 0, p2 > 0)
         sx = w[np.uint64(W_S * CHUNK_STRIDE) + k]
         sy = w[np.uint64((W_S + 1) * CHUNK_STRIDE) + k]
@@ -507,13 +526,15 @@ def _linear_maths(work, tid, m, dt, update_history):
         fty = py if slide else fty
         ftz = pz if slide else ftz
         reset = slide & (kt > 0.0)
-        px = -(ftx + gt * vtx) / kt
-        py = -(fty + gt * vty) / kt
-        pz = -(ftz + gt * vtz) / kt
+        inv_kt = 1.0 / kt
+        px = -(ftx + gt * vtx) * inv_kt
+        py = -(fty + gt * vty) * inv_kt
+        pz = -(ftz + gt * vtz) * inv_kt
         sx = px if reset else sx
         sy = py if reset else sy
         sz = pz if reset else sz
-        e_el += 0.5 * kt * (sx * sx + sy * sy + sz * sz)
+        ke = 0.5 * kn
+        e_el = ke * delta * delta + 0.5 * kt * (sx * sx + sy * sy + sz * sz)
         fx = fn * nx + ftx
         fy = fn * ny + fty
         fz = fn * nz + ftz
@@ -560,7 +581,7 @@ def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
             hflag[p] = _has_spring(sx, sy, sz)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy", fastmath=CONTACT_FASTMATH)
 def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow, cext,
               ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, nslots, force, torque,
