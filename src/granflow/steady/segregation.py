@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -136,8 +137,6 @@ def relaxation_projection(t, s, *, alpha: float = SEGREGATION_ALPHA,
     s_inf0 = float(np.mean(tail))
     p0 = [s_inf0, float(s[0]) - s_inf0, math.log(span / 3.0)]
     try:
-        import warnings
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             p, cov = curve_fit(_relax, x, s, p0=p0, bounds=([-np.inf, -np.inf, lo], [np.inf, np.inf, hi]),
