@@ -153,3 +153,46 @@ def test_cap_sample_closes_bin_immediately():
         mon.update(t, 0.2 * (1.0 + 0.1 * np.sin(t)), 2.0)
     d = mon.decision()
     assert d.stop and d.t == pytest.approx(150.0)
+
+
+# E_kin means of 5-unit blocks of the default's theta = 24, H = 10 run at 845f018 (a 10 x 5 box,
+# 500 grains; E_ela ~ 0.7): a steady flow that wandered 288 (t ~ 110) -> 93 (t ~ 200) -> 244
+# (t ~ 300).  It was stopped at t = 361 as "accelerating (growth x1.6)": the last window was
+# measured against the dip at half the elapsed time.
+WANDERING_EKIN = [1084, 348, 141, 156, 140, 147, 142, 160, 156, 162, 143, 130, 157, 192, 215, 246,
+                  238, 207, 214, 253, 243, 288, 307, 287, 276, 267, 217, 187, 170, 174, 185, 198,
+                  173, 149, 150, 162, 135, 113, 106, 95, 93, 128, 125, 144, 139, 153, 131, 133,
+                  160, 168, 184, 193, 186, 173, 183, 199, 199, 196, 206, 232, 244, 237, 231, 240,
+                  237, 232, 231, 225, 197, 198, 212, 232]
+
+
+def wandering(seed):
+    t_mid = 2.5 + 5.0 * np.arange(len(WANDERING_EKIN))
+    return np.interp(T, t_mid, WANDERING_EKIN) * noise(seed, amp=0.05)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_return_from_a_dip_is_not_acceleration(seed):
+    """Measured against the highest earlier level (after the start-up window), not the level at
+    half the elapsed time, the wandering steady run is not stopped as accelerating (the
+    default's monitor settings and start-up time, fed as far as the measured series goes)."""
+    mon = SteadyStateMonitor(t_cap=400, averaging_time=40, check_every=10,
+                             min_accelerating_time=200, min_onset=15.6)
+    e_kin = wandering(seed)
+    old_growth, states = [], []
+    for i in range(int(361.0 / DT)):
+        mon.update(T[i], e_kin[i], 0.7 * (1.0 + 0.01 * np.sin(T[i])))
+        d = mon.decision()
+        assert d.reason != "accelerating", d.explain()
+        if T[i] >= 200.0 and T[i] % 10.0 == 0.0:
+            s = mon.series()
+            t, r = s["time"], s["ratio"]
+            old_growth.append(np.median(r[t >= t[-1] - 40.0])
+                              / np.median(r[np.abs(t - 0.5 * t[-1]) <= 20.0]))
+            states.append(mon.classify().state)
+    # what made the old rule stop: a significant rise (the classifier's verdict) and a growth
+    # beyond ACCEL_MIN_GROWTH = 1.5 against the window at half the elapsed time
+    assert "accelerating" in states
+    assert max(old_growth) >= 1.45
+    s = mon.series()
+    assert mon._growth(s["ratio"], s["time"]) < 1.0
