@@ -144,7 +144,7 @@ def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
     table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
     # 3 grid + 3 segregation runs, the search's first point is a grid point: 6 simulations
     assert table.get("simulate") == "6" and table.get("row") == "6", out[-3000:]
-    for rule in ("base", "hstop_step", "collect", "fit", "library", "report"):
+    for rule in ("base", "warm_engine", "hstop_step", "collect", "fit", "library", "report"):
         assert table.get(rule) == "1", (rule, out[-3000:])
     assert "This was a dry-run" in out
     assert not (tmp_path / "results").exists()

@@ -27,6 +27,9 @@ CONDA_ENV = str(REPO / "workflow" / "envs" / "granflow.yaml")
 
 NAME = config["name"]
 RESULTS = f"results/{NAME}"
+# the compile-warm job's record (warm_engine in base.smk) is a final target, not an input of
+# the simulate jobs (a rerun of it must never make the runs look out of date)
+WARM_ENGINE = f"{RESULTS}/logs/warm_engine.json"
 THREADS = G.threads(config)
 GRID_RUNS = G.expand_runs(config)
 CHUTE = G.campaign_cfg(config, "chute")
@@ -294,6 +297,7 @@ def final_targets():
     # the grid rows are listed too, so that grid runs start at once, side by side with the
     # hstop-search chain (whose checkpoints defer the collect rule's input)
     out = [os.path.join(run_dir(p), "row.json") for p in GRID_RUNS]
+    out.append(WARM_ENGINE)
     out += bisect_chain_targets()
     out += [f"{RESULTS}/closures.nc", f"{RESULTS}/closures.csv", f"{RESULTS}/closures.json"]
     if REPORT_ON:

@@ -6,6 +6,7 @@ command        what it does
 check-config   validate campaign configuration file(s) (merged in order) against the schema
 expand         list the run directories a configuration defines
 run-params     write one run's ``params.yaml`` (input of ``granflow simulate``)
+warm-engine    compile the campaign's kernels by tiny runs (beside the base job; no results)
 row            one campaign-table row from a finished run (+ Ps fit for bidisperse runs)
 hstop-step     one step of the adaptive hstop search
 hstop-bisect   one step of an hstop bisection chain at one filling height
@@ -76,6 +77,13 @@ def cmd_run_params(args):
         ckpt.unlink()  # a checkpoint of other parameters must not be resumed
         print(f"{out}: parameters changed; removed the stale {ckpt}", file=sys.stderr)
     atomic_write_bytes(out, text.encode())
+
+
+def cmd_warm_engine(args):
+    from .warm import warm_engine
+
+    rec = warm_engine(json.loads(args.config_json), args.out)
+    print("compile-warm: " + ", ".join(f"{r['run']} {r['seconds']:g} s" for r in rec["runs"]))
 
 
 def cmd_row(args):
@@ -220,6 +228,11 @@ def register(subparsers):
     p.add_argument("--json", required=True, help="run parameters as a JSON object")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_run_params)
+
+    p = sub.add_parser("warm-engine", help="compile the campaign's kernels (tiny runs)")
+    p.add_argument("--config-json", required=True, help="the campaign configuration (JSON)")
+    p.add_argument("--out", required=True, help="record of the warm-up runs (JSON)")
+    p.set_defaults(func=cmd_warm_engine)
 
     p = sub.add_parser("row", help="campaign-table row of a finished run")
     p.add_argument("run_dir")
