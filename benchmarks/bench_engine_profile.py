@@ -63,6 +63,8 @@ CLOCK = CLOCK_PROCESS_CPUTIME_ID if os.environ.get("GRANFLOW_PROFILE_CLOCK", "cp
 #: run the pair pass in this many runs of blocks (``--slots``; default: the number of threads),
 #: e.g. the two-thread split on one thread, to see the cost of the split itself
 FORCE_SLOTS = 0
+#: the engine balances the pair pass's runs of blocks (``kernels.split_runs``; since 2026-11-24)
+BALANCED = hasattr(K, "split_runs")
 _timer = time.process_time if CLOCK == CLOCK_PROCESS_CPUTIME_ID else time.perf_counter
 
 
@@ -231,6 +233,7 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     half_near = 0.5 * near_skin
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
+    run_start = np.empty(nslots + 1, dtype=np.int64)
     t0 = _now(buf)
     K.particle_pass(False, False, False, True, False, pos, vel, omega, vel_p, omega_p, force,
                     torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
@@ -269,13 +272,20 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
             t2 = _now(buf)
             acc[NEAR] += t2 - t1
             t1 = t2
-        K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
-                    hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext,
-                    ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc,
-                    nslots, force, torque, near, near_n, ntouch)
-        nbp = (near_n[0] + K.PAIR_BLOCK - 1) // K.PAIR_BLOCK
-        K.push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
-                    torque)
+        if BALANCED:
+            K.split_runs(near_n[0], blk_pair_nc, nslots, run_start)
+            K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred,
+                        hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow,
+                        cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel,
+                        blk_pair_nc, run_start, force, torque, near, near_n, ntouch)
+            b1 = run_start[1]
+        else:
+            K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred,
+                        hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow,
+                        cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel,
+                        blk_pair_nc, nslots, force, torque, near, near_n, ntouch)
+            b1 = (near_n[0] + K.PAIR_BLOCK - 1) // K.PAIR_BLOCK // nslots
+        K.push_rows(b1, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force, torque)
         t2 = _now(buf)
         K.particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
                         omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx,

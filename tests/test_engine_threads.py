@@ -1,7 +1,7 @@
 """The engine's numbers do not depend on how the work is split (issue 15).
 
 Forces are summed in pair order whatever the number of threads (the pair pass's runs of
-blocks, ``kernels.pair_pass`` / ``push_rows``), and the neighbour and near lists hold every
+blocks, ``kernels.pair_pass`` / ``push_rows``, split by ``kernels.split_runs``), and the neighbour and near lists hold every
 touching pair in pair order whenever they are rebuilt, so a run gives the same numbers, bit for
 bit, on any number of threads and with any Verlet skin.
 """
@@ -11,6 +11,8 @@ import math
 import numba
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from granflow.engine import ContactSpecies, InteractionTable, ParticleSystem
 
@@ -111,3 +113,27 @@ def test_vectorised_linear_contacts_equal_the_scalar_law():
         scalar.step(n)
         _assert_same(_state(vector), _state(scalar))
     assert int((vector.pair_out[:, 10] > 0).sum()) > 500
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 40 * 512), st.integers(1, 9), st.integers(0, 2**31 - 1))
+def test_split_runs_covers_the_blocks_in_order_and_balances_two_runs(nnear, nslots, seed):
+    """``split_runs``: runs of blocks that cover the near list once, in order; with two runs,
+    the larger cost is within one block of the best contiguous split (the cost model of the
+    kernel: near pairs + CONTACT_COST x contacts, the first run also PUSH_COST x contacts)."""
+    from granflow.engine.lib import kernels as K
+
+    nblock = (nnear + K.PAIR_BLOCK - 1) // K.PAIR_BLOCK
+    rng = np.random.default_rng(seed)
+    blk_nc = rng.integers(0, 400, nblock + 3).astype(np.int64)  # stale entries beyond nblock
+    run = np.full(nslots + 1, -1, dtype=np.int64)
+    K.split_runs(nnear, blk_nc, nslots, run)
+    assert run[0] == 0 and run[-1] == nblock
+    assert np.all(np.diff(run) >= 0)
+    if nslots == 2 and nblock:
+        size = np.minimum(K.PAIR_BLOCK, nnear - K.PAIR_BLOCK * np.arange(nblock))
+        cost = size + K.CONTACT_COST * blk_nc[:nblock]
+        first = np.r_[0.0, np.cumsum(cost + K.PUSH_COST * blk_nc[:nblock])]
+        rest = cost.sum() - np.r_[0.0, np.cumsum(cost)]
+        worst = np.maximum(first, rest)
+        assert worst[run[1]] <= worst.min() + (cost + K.PUSH_COST * blk_nc[:nblock]).max()

@@ -589,8 +589,8 @@ def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
 @njit(cache=True, parallel=True, error_model="numpy", fastmath=CONTACT_FASTMATH)
 def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow, cext,
-              ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, nslots, force, torque,
-              near, near_n, ntouch):
+              ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, run_start, force,
+              torque, near, near_n, ntouch):
     """Contact forces of the pairs of the near list (see the module docstring).
 
     ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
@@ -607,20 +607,22 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
     pair) holds the block-local lists of touching pairs; ``work`` (one row per thread) the
     vectorised linear contacts (``all_linear``).
 
-    The blocks are split into ``nslots`` (the number of threads) contiguous runs, one per
-    thread.  The first run adds its contacts to ``force`` and ``torque`` (which hold gravity)
-    in pair order as it goes; the others leave their rows (``blk_nc[b]`` contacts in block b)
-    for :func:`push_rows`, which adds them afterwards, again in pair order.  So every force is
-    summed in pair order, whatever the number of threads: the same numbers for any count.
+    The blocks are split into contiguous runs, one per thread: run s is blocks
+    ``run_start[s]:run_start[s + 1]`` (:func:`split_runs` balances them by the contacts each
+    block had at the previous step).  The first run adds its contacts to ``force`` and
+    ``torque`` (which hold gravity) in pair order as it goes; the others leave their rows
+    (``blk_nc[b]`` contacts in block b) for :func:`push_rows`, which adds them afterwards,
+    again in pair order.  So every force is summed in pair order, whatever the number of
+    threads and wherever the runs split: the same numbers for any count.
     """
     nnear = near_n[0]
-    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
+    nslots = run_start.shape[0] - 1
     box = (Lx, Ly, 0.5 * Lx, 0.5 * Ly)
     half_Lx = 0.5 * Lx
     half_Ly = 0.5 * Ly
     for su in prange(nslots):
         slot = np.int64(su)
-        for b in range(slot * nblock // nslots, (slot + 1) * nblock // nslots):
+        for b in range(run_start[slot], run_start[slot + 1]):
             k0 = b * PAIR_BLOCK
             k1 = min(k0 + PAIR_BLOCK, nnear)
             # scan of the block's near pairs (vectorised, gathers; unsigned indices: no
@@ -691,6 +693,67 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
             blk_overlap[b] = ov
             blk_erel[b] = erel
             blk_nc[b] = nc - k0
+
+
+#: Cost of a contact in the pair pass, in units of the cost of scanning one near pair, and the
+#: extra cost of adding a contact to the forces in the first run (measured on the benchmark
+#: chute at one thread, 2026-11-24: ~6.8 ns per near pair, ~57 ns per contact, ~5 ns per push;
+#: the split changes no number, only the balance of the threads).
+CONTACT_COST = 8.0
+PUSH_COST = 1.0
+
+
+@njit(cache=True)
+def split_runs(nnear, blk_nc, nslots, run_start):
+    """Split the near list's blocks into ``nslots`` contiguous runs of about equal work
+    (``run_start``, nslots + 1 block boundaries): a block costs its near pairs plus
+    CONTACT_COST times its contacts at the last step (``blk_nc``; 0 for blocks that did not
+    exist), the first run also PUSH_COST per contact (it adds its contacts to the forces while
+    the others compute; :func:`push_rows` adds theirs afterwards).  Any split gives the same
+    numbers: it only moves work between threads."""
+    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
+    run_start[0] = 0
+    run_start[nslots] = nblock
+    if nslots == 1:
+        return
+    total = 0.0
+    for b in range(nblock):
+        k0 = b * PAIR_BLOCK
+        total += min(k0 + PAIR_BLOCK, nnear) - k0 + CONTACT_COST * blk_nc[b]
+    # the first run: the number of blocks x that minimises the larger of its cost (with the
+    # pushes) and an equal share of the rest
+    first = 0.0
+    rest = total
+    x = 0
+    best = rest / (nslots - 1)
+    for b in range(nblock):
+        k0 = b * PAIR_BLOCK
+        c = min(k0 + PAIR_BLOCK, nnear) - k0 + CONTACT_COST * blk_nc[b]
+        f = first + c + PUSH_COST * blk_nc[b]
+        r = rest - c
+        worse = max(f, r / (nslots - 1))
+        if worse > best:
+            break
+        best = worse
+        first = f
+        rest = r
+        x = b + 1
+    run_start[1] = x
+    # the other runs: equal shares of the rest
+    share = rest / (nslots - 1)
+    acc = 0.0
+    s = 2
+    for b in range(x, nblock):
+        if s >= nslots:
+            break
+        k0 = b * PAIR_BLOCK
+        acc += min(k0 + PAIR_BLOCK, nnear) - k0 + CONTACT_COST * blk_nc[b]
+        if acc >= share * (s - 1):
+            run_start[s] = b + 1
+            s += 1
+    while s < nslots:
+        run_start[s] = nblock
+        s += 1
 
 
 @njit(cache=True)
@@ -1134,16 +1197,18 @@ def compute_forces(
     near_index(near_tmp, near_count, near, near_n)
     near_ref[:, :] = pos
     near_ok[0] = 1
+    run_start = np.empty(nslots + 1, dtype=np.int64)
+    split_runs(near_n[0], np.zeros(near_count.shape[0], dtype=np.int64), nslots, run_start)
     particle_pass(True, False, False, False, True, pos, vel, omega, vel, omega, force, torque,
                   radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
                   wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
                   blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
     pair_pass(pos, vel, omega, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, False, crow, cext, ridx,
-              prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, nslots, force,
-              torque, near, near_n, ntouch)
+              prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, run_start,
+              force, torque, near, near_n, ntouch)
     nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
-    push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+    push_rows(run_start[1], near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
               torque)
     particle_pass(False, True, False, False, False, pos, vel, omega, vel, omega, force, torque,
                   radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
@@ -1199,6 +1264,7 @@ def advance(
     half_near = 0.5 * near_skin
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
+    run_start = np.empty(nslots + 1, dtype=np.int64)
     # bounds of the largest displacement since the neighbour build / the near list: exact
     # after a measurement, then + dt max|v| per step; measured again only when one crosses its
     # threshold.  A bound is never below the displacement, so the lists are rebuilt at exactly
@@ -1236,12 +1302,15 @@ def advance(
             near_ref[:, :] = pos
             near_ok[0] = 1
             bound_near = 0.0
+        # blocks of the near list per thread, balanced by the last step's contacts (a near list
+        # just built has new blocks: its first step splits by the old counts, still a fair guess)
+        split_runs(near_n[0], blk_pair_nc, nslots, run_start)
         pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
                   hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow, cext, ridx,
-                  prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, nslots,
-                  force, torque, near, near_n, ntouch)
+                  prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc,
+                  run_start, force, torque, near, near_n, ntouch)
         nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
-        push_rows(nbp // nslots, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+        push_rows(run_start[1], near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
                   torque)
         particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
                       omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly,
