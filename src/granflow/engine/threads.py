@@ -18,8 +18,8 @@ runs* without changing a single bit of its output.  :class:`SpareCores` does tha
   together never run more threads than its ``--cores``; a job that finds no free slot at
   its start writes ``want-<pid>`` and every borrower gives its extra threads back at once.
 
-Nothing here changes a number: the thread count is recorded (thread-seconds per count) in the
-run's summary only.  Off on Slurm (a job's cores are its allocation) and where ``/proc/stat``
+Nothing here changes a number: the thread count is recorded (wall seconds per count) in the
+run's ``simulate.log`` only, so every output file stays identical.  Off on Slurm (a job's cores are its allocation) and where ``/proc/stat``
 or ``fcntl`` are missing (the run keeps its threads).
 """
 
