@@ -4,6 +4,8 @@ changes (granflow.engine.threads).
 * the policy, on a scripted machine (injected CPU counters and clock): an idle core is taken
   after one interval, given back as soon as another process needs it, never taken from a
   busy machine, never beyond ``max_threads``; the wall time per thread count adds up;
+  a borrowed thread that does not raise the step rate by ``PAYS`` goes back for good (small
+  systems run slower on two threads), one that does stays;
 * the lease: one lock per thread, shared by the jobs of a campaign; a dead job's locks are
   freed by the kernel; a job waiting for a slot makes the borrowers give theirs back;
 * a run whose threads change every few steps ends with exactly the numbers of a one-thread run;
@@ -39,11 +41,25 @@ class Machine:
         self.busy_s += (self.others + self.own_rate) * dt
         self.own_s += self.own_rate * dt
 
-    def spare(self, max_threads=2, cores=2, lease_dir=None):
+    def spare(self, max_threads=2, cores=2, lease_dir=None, progress=None):
         s = T.SpareCores(max_threads, cores=cores, lease_dir=lease_dir, interval_s=2.0,
                          busy=lambda: self.busy_s, own=lambda: self.own_s,
-                         clock=lambda: self.t, apply=self.applied.append, wait_s=0.0)
+                         clock=lambda: self.t, apply=self.applied.append, wait_s=0.0,
+                         progress=progress)
         return s.start()
+
+
+class Stepper:
+    """Scripted engine: ``rate[k]`` steps per wall second on k threads."""
+
+    def __init__(self, machine, rate):
+        self.m, self.rate, self.steps, self.spare = machine, rate, 0.0, None
+
+    def run(self, dt):
+        self.steps += self.rate[self.spare.threads] * dt
+        self.m.own_rate = float(self.spare.threads)
+        self.m.advance(dt)
+        return self.spare.poll()
 
 
 @pytest.fixture(autouse=True)
@@ -204,3 +220,28 @@ def test_bad_max_threads_is_refused_before_any_compute(monkeypatch, tmp_path):
                  max_threads=-1)
     assert not (tmp_path / "run" / "checkpoint.npz").exists()
     assert not list((tmp_path / "run").glob("*.nc"))
+
+
+@pytest.mark.parametrize("speedup, keeps", [(0.5, False), (1.10, False), (1.20, True), (1.43, True)])
+def test_a_borrowed_thread_stays_only_if_it_raises_the_step_rate(speedup, keeps):
+    m = Machine()
+    eng = Stepper(m, {1: 1000.0, 2: 1000.0 * speedup, 3: 1000.0 * speedup})
+    eng.spare = s = m.spare(max_threads=3, cores=4, progress=lambda: eng.steps)
+    assert eng.run(2.0) == 2  # idle cores: a thread is taken ...
+    after = eng.run(2.0)  # ... and judged on the next interval
+    assert s.speedups[2] == pytest.approx(speedup, rel=1e-9)
+    if keeps:
+        assert after == 3  # it paid; the next idle core is tried too
+        assert eng.run(2.0) == 2  # the third thread gave nothing (rate on 3 = rate on 2)
+        assert s.ceiling == 2
+        for _ in range(5):
+            assert eng.run(2.0) == 2
+    else:
+        assert after == 1 and s.ceiling == 1
+        for _ in range(5):  # never tried again, although cores stay idle
+            assert eng.run(2.0) == 1
+    s.close()
+    summary = s.summary()
+    assert summary["ceiling"] == s.ceiling
+    assert summary["speedup_at_threads"]["2"] == pytest.approx(speedup, abs=1e-3)
+    assert sum(s.record.values()) == pytest.approx(m.t)

@@ -640,6 +640,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
                        checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
     if spare is not None:
+        # a borrowed thread stays only if the run's steps per second show it pays
+        spare.progress = lambda: run.system.step_count
         run.tick_hooks.append(spare.poll)
     # a resumed run restores its monitor (and this value) from the checkpoint
     min_onset = (startup_time(system, p["theta"]) if system.time == 0.0 and from_state is None

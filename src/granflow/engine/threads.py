@@ -16,7 +16,13 @@ runs* without changing a single bit of its output.  :class:`SpareCores` does tha
 * holds one lock file per thread in a lease folder shared by the campaign's jobs (``slot-K``,
   ``fcntl.flock``; released by the kernel when a process dies), so the jobs of one campaign
   together never run more threads than its ``--cores``; a job that finds no free slot at
-  its start writes ``want-<pid>`` and every borrower gives its extra threads back at once.
+  its start writes ``want-<pid>`` and every borrower gives its extra threads back at once;
+* keeps a borrowed thread only if it pays: the run's steps per wall second over the first
+  interval on the new count must beat the interval before it by ``PAYS``, or the thread goes
+  back and the run stays below that count to its end.  Threads do not pay on small systems:
+  the default campaign's 600-particle chute ran at half its one-thread speed on two threads
+  (88 s -> 178 s wall, 4x the CPU), a 2400-particle one at 0.9x, the dense 4405-particle
+  benchmark chute (bench_engine_threads.py) 1.43x faster.
 
 Nothing here changes a number: the thread count is recorded (wall seconds per count) in the
 run's ``simulate.log`` only, so every output file stays identical.  Off on Slurm (a job's cores are its allocation) and where ``/proc/stat``
@@ -36,6 +42,8 @@ log = logging.getLogger(__name__)
 TAKE = 0.75
 #: give extra threads back when other processes used this much more than the free cores
 GIVE = 0.35
+#: a borrowed thread stays only if the step rate on it is at least this times the rate before
+PAYS = 1.15
 #: environment variables through which the workflow hands a job its campaign's cores
 ENV_MAX_THREADS = "GRANFLOW_MAX_THREADS"
 ENV_LEASE = "GRANFLOW_CORE_LEASE"
@@ -146,7 +154,7 @@ class SpareCores:
 
     def __init__(self, max_threads: int, base: int = 1, lease_dir=None, interval_s: float = 2.0,
                  cores: int | None = None, busy=proc_stat_busy, own=own_cpu,
-                 clock=time.monotonic, apply=None, wait_s: float = 10.0):
+                 clock=time.monotonic, apply=None, wait_s: float = 10.0, progress=None):
         import numba
 
         self.base = max(1, int(base))
@@ -166,6 +174,12 @@ class SpareCores:
                 log.info("spare cores: no lease folder (%s); measuring idle cores only", exc)
         self._wait_s = float(wait_s)
         self._last = None
+        # steps done so far (e.g. the system's step count): the borrowed thread must pay
+        self.progress = progress
+        self.ceiling = self.max_threads  # lowered when a count did not pay
+        self.speedups: dict[int, float] = {}  # rate on K threads / rate on K - 1 (trials)
+        self._steps = None
+        self._trial = None  # (threads, rate before the thread was taken)
 
     # ---------------------------------------------------------------- lifecycle
     def start(self):
@@ -174,6 +188,7 @@ class SpareCores:
         now = self.clock()
         self._last = (now, self.busy() if self.enabled else None, self.own())
         self._since = now
+        self._steps = self.progress() if self.progress is not None else None
         if self.lease is None:
             return self
         deadline = now + self._wait_s
@@ -220,28 +235,51 @@ class SpareCores:
         self._last = (now, busy, own)
         dt = now - t0
         others = max(0.0, ((busy - busy0) - (own - own0)) / dt)
+        rate = None  # steps per wall second over the interval (all of it on self.threads)
+        if self.progress is not None:
+            steps = self.progress()
+            rate = (steps - self._steps) / dt
+            self._steps = steps
         lease = self.lease
         if lease is not None and len(lease.held) < self.base:  # still waiting for a slot
             if lease.take():
                 lease.set_wanting(False)
+        if self._trial is not None and rate is not None:
+            tried, before = self._trial
+            self._trial = None
+            if self.threads == tried and before > 0:
+                self.speedups[tried] = round(rate / before, 3)
+                if rate < PAYS * before:  # the thread did not pay: back, and not again
+                    log.info("spare cores: %d threads ran at %.2f x the speed on %d; staying "
+                             "below %d", tried, rate / before, tried - 1, tried)
+                    self.ceiling = tried - 1
+                    if lease is not None:
+                        lease.give(max(self.base, tried - 1))
+                    self._set(tried - 1, now)
+                    return self.threads
         if self.threads > self.base and (others > self.cores - self.threads + GIVE
                                          or (lease is not None and lease.others_want())):
             if lease is not None:
                 lease.give(self.base)
             self._set(self.base, now)
-        elif (self.threads < self.max_threads and self.cores - others - self.threads >= TAKE
+        elif (self.threads < min(self.max_threads, self.ceiling) and self.cores - others - self.threads >= TAKE
               and (lease is None or not lease.others_want())):
             if lease is None or lease.take():
+                if rate is not None:
+                    self._trial = (self.threads + 1, rate)
                 self._set(self.threads + 1, now)
         return self.threads
 
     def summary(self) -> dict:
         """Wall seconds per thread count (JSON keys: strings)."""
         return {"max_threads": self.max_threads, "enabled": self.enabled,
-                "wall_s_at_threads": {str(k): round(v, 3) for k, v in sorted(self.record.items())}}
+                "wall_s_at_threads": {str(k): round(v, 3) for k, v in sorted(self.record.items())},
+                "speedup_at_threads": {str(k): v for k, v in sorted(self.speedups.items())},
+                "ceiling": self.ceiling}
 
 
-def from_environment(threads: int, max_threads: int | None = None, lease_dir=None):
+def from_environment(threads: int, max_threads: int | None = None, lease_dir=None,
+                     progress=None):
     """A :class:`SpareCores` from the arguments or the workflow's environment, or None."""
     if max_threads is None:
         env = os.environ.get(ENV_MAX_THREADS, "").strip()
@@ -259,5 +297,5 @@ def from_environment(threads: int, max_threads: int | None = None, lease_dir=Non
         lease_dir = os.environ.get(ENV_LEASE) or None
     if max_threads is None or max_threads <= (threads or 1):
         return None
-    spare = SpareCores(max_threads, base=threads or 1, lease_dir=lease_dir)
+    spare = SpareCores(max_threads, base=threads or 1, lease_dir=lease_dir, progress=progress)
     return spare if spare.enabled else None
