@@ -57,6 +57,8 @@ onstart:
             CLUSTER.fitted(_rule, True)
         for _msg in CLUSTER.messages:
             logger.warning(f"granflow cluster: {_msg}")
+    else:
+        hand_out_spare_cores()
 
 
 rule all:

@@ -2,9 +2,12 @@
 
 Reads the last line of every ``simulate.log`` under a campaign's results folder (``granflow
 simulate`` ends it with "... at t = T (N flow particles, W s wall)") and prints the core hours
-(one thread per run), the simulated time and the particle count per group -- what a cluster
-allocation for the same campaign needs (``--workflow-profile profiles/slurm``), independent of
-how many cores ran it here.  A run resumed from a checkpoint reports only its last segment.
+(thread hours: a run's wall time times its threads), the simulated time and the particle count
+per group -- what a cluster allocation for the same campaign needs (``--workflow-profile
+profiles/slurm``), independent of how many cores ran it here.  Runs that took spare cores
+(``granflow.engine.threads``; their log's "spare cores:" line gives the wall seconds per thread
+count) are counted at their threads, and the wall time they spent on more than one thread is
+printed too.  A run resumed from a checkpoint reports only its last segment.
 
     .venv/bin/python benchmarks/campaign_cost.py results/reference-lambda1
 """
@@ -12,15 +15,27 @@ how many cores ran it here.  A run resumed from a checkpoint reports only its la
 from __future__ import annotations
 
 import argparse
+import ast
 import re
 from collections import defaultdict
 from pathlib import Path
 
 LAST = re.compile(r"at t = ([0-9.eE+-]+) \((\d+) flow particles, ([0-9.]+) s wall\)")
+SPARE = re.compile(r"spare cores: (\{.*\})")
+
+
+def spare_record(lines) -> dict[int, float]:
+    """Wall seconds per thread count from a log's last "spare cores:" line ({} if none)."""
+    for line in reversed(lines):
+        m = SPARE.search(line)
+        if m:
+            rec = ast.literal_eval(m.group(1)).get("wall_s_at_threads", {})
+            return {int(k): float(v) for k, v in rec.items()}
+    return {}
 
 
 def run_costs(results: Path):
-    """(kind, H, t_final, n_flow, wall_s) for every finished run under ``results``."""
+    """(kind, H, t_final, n_flow, wall_s, thread_s, wall_s_multi) for every finished run."""
     out = []
     for log in sorted(results.rglob("simulate.log")):
         lines = log.read_text(errors="replace").strip().splitlines()
@@ -29,7 +44,12 @@ def run_costs(results: Path):
             continue
         rel = log.parent.relative_to(results).parts
         H = next((p.split("~", 1)[1] for p in rel if p.startswith("H~")), "?")
-        out.append((rel[0], H, float(m.group(1)), int(m.group(2)), float(m.group(3))))
+        wall = float(m.group(3))
+        rec = spare_record(lines)
+        # the time outside the stepping loop (set-up, outputs) ran on one thread
+        multi = sum(w for k, w in rec.items() if k > 1)
+        thread_s = wall + sum((k - 1) * w for k, w in rec.items())
+        out.append((rel[0], H, float(m.group(1)), int(m.group(2)), wall, thread_s, multi))
     return out
 
 
@@ -41,15 +61,20 @@ def main():
     if not rows:
         raise SystemExit(f"no finished simulate.log under {args.results}")
     groups = defaultdict(list)
-    for kind, H, t, n, w in rows:
-        groups[(kind, H)].append((t, n, w))
-    print(f"{'kind':<12} {'H':>6} {'runs':>5} {'t simulated':>12} {'core h':>8}")
+    for kind, H, t, n, w, ts, multi in rows:
+        groups[(kind, H)].append((t, n, w, ts, multi))
+    print(f"{'kind':<12} {'H':>6} {'runs':>5} {'t simulated':>12} {'core h':>8} {'wall h':>8} "
+          f"{'wall h >1 thr':>14}")
     for (kind, H), g in sorted(groups.items(), key=lambda kv: (kv[0][0], float(kv[0][1])
                                                                 if kv[0][1] != "?" else 0)):
         print(f"{kind:<12} {H:>6} {len(g):>5} {sum(x[0] for x in g):>12.0f} "
-              f"{sum(x[2] for x in g) / 3600:>8.3f}")
-    total = sum(r[4] for r in rows) / 3600
-    print(f"total: {len(rows)} runs, {total:.2f} core hours in the simulations")
+              f"{sum(x[3] for x in g) / 3600:>8.3f} {sum(x[2] for x in g) / 3600:>8.3f} "
+              f"{sum(x[4] for x in g) / 3600:>14.3f}")
+    total = sum(r[5] for r in rows) / 3600
+    wall = sum(r[4] for r in rows) / 3600
+    multi = sum(r[6] for r in rows) / 3600
+    print(f"total: {len(rows)} runs, {total:.2f} core hours in the simulations ({wall:.2f} h of "
+          f"run wall time, {multi:.2f} h of it on more than one thread)")
 
 
 if __name__ == "__main__":

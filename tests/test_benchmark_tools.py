@@ -70,3 +70,18 @@ def test_campaign_cost_sums_the_runs_last_log_lines(tmp_path):
     assert sum(r[4] for r in chute) == pytest.approx(87.3 + 58.1)
     assert sum(r[2] for r in chute) == pytest.approx(221 + 161)
     assert {r[1] for r in rows} == {"10", "2"} and all(r[3] in (500, 100) for r in rows)
+
+
+def test_campaign_cost_counts_spare_core_threads(tmp_path):
+    """A run that took a spare core (granflow.engine.threads) costs its thread seconds: 30 s
+    on one thread and 50 s on two of its 90 s wall are 90 + 50 = 140 thread seconds."""
+    cc = _load("campaign_cost")
+    p = tmp_path / "bracket/linear/lambda~1/theta~24.7/H~5"
+    p.mkdir(parents=True)
+    (p / "simulate.log").write_text(
+        "2026-11-25 granflow.simulate INFO: spare cores: {'max_threads': 2, 'enabled': True, "
+        "'wall_s_at_threads': {'1': 30.0, '2': 50.0}}\n"
+        f"{p}: arrested (...) at t = 300 (250 flow particles, 90.0 s wall)\n")
+    (row,) = cc.run_costs(tmp_path)
+    assert row[4] == pytest.approx(90.0) and row[5] == pytest.approx(140.0)
+    assert row[6] == pytest.approx(50.0)

@@ -101,6 +101,12 @@ def test_tiny_campaign_end_to_end(tiny):
               "row.json", "simulate.log"):
         assert (run / f).is_file(), f
     assert "INFO" in (run / "simulate.log").read_text()  # progress/log lines of the job
+    # spare cores: the workflow hands its --cores to the runs (granflow.engine.threads)
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS >= 2 and Path("/proc/stat").exists():
+        for log in res.glob("*/linear/**/simulate.log"):
+            assert "spare cores: {'max_threads': 2, 'enabled': True" in log.read_text(), log
     # one base for every run over (lambda = 1, 6 x 4)
     assert [p.relative_to(res).as_posix() for p in res.glob("bases/*/*/base.npy")] == \
         ["bases/lambda~1/box~6x4/base.npy"]

@@ -183,7 +183,8 @@ def cmd_simulate(args):
         signal.signal(sig, stop)
     try:
         summary = simulate(params, args.out, base_file=args.base, threads=args.threads,
-                           from_state=args.from_state)
+                           from_state=args.from_state, max_threads=args.max_threads,
+                           core_lease=args.core_lease)
     finally:
         remove_pid_file()
     print(f"{args.out}: {summary['flow_state']} ({summary['stop_reason']}) at t = {summary['t_final']:.4g} "
@@ -252,6 +253,12 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--base", default=None, help="prepared base positions (.npy) to reuse")
     p.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
+    p.add_argument("--max-threads", type=int, default=None,
+                   help="take up to this many threads while the machine has idle cores (no "
+                        "number changes; default $GRANFLOW_MAX_THREADS, set by the workflow)")
+    p.add_argument("--core-lease", default=None, metavar="DIR",
+                   help="lock folder shared with other runs, so that together they take at "
+                        "most --max-threads threads (default $GRANFLOW_CORE_LEASE)")
     p.add_argument("--from", dest="from_state", default=None, metavar="STATE",
                    help="restart from a saved final_state.npz at the inclination of the "
                         "parameter file (clock reset to 0; outputs name the parent run)")

@@ -567,13 +567,19 @@ def restart_state(state_file, cfg: ChuteConfig):
 
 
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
-             progress=None, extra_observers=(), from_state=None) -> dict:
+             progress=None, extra_observers=(), from_state=None, max_threads: int | None = None,
+             core_lease=None) -> dict:
     """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
 
     ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
     run, after the built-in ones (e.g. a second :class:`~granflow.observers.ProfileObserver`
     with another coarse-graining choice).  ``from_state``: start from this saved state at the
-    inclination of ``params`` (:func:`restart_state`; ``base_file`` is not used).  Returns a
+    inclination of ``params`` (:func:`restart_state`; ``base_file`` is not used).
+    ``max_threads`` (default: ``$GRANFLOW_MAX_THREADS``, which the workflow sets to its
+    ``--cores`` on a local machine): the numba engine takes up to this many threads while the
+    machine has idle cores (:mod:`granflow.engine.threads`, shared with the campaign's other
+    jobs through the lock folder ``core_lease`` or ``$GRANFLOW_CORE_LEASE``); no number
+    depends on it (the log records the wall time per thread count).  Returns a
     summary dict (flow state, stop reason, final time, particle count, wall time, and the
     ChuteRun under ``run``).
     """
@@ -590,6 +596,11 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     set_threads(threads)
     cfg = chute_config(p)
     engine = p.get("engine", "numba")
+    spare = None
+    if engine == "numba":  # LAMMPS' ranks are fixed at its start
+        from .engine.threads import from_environment
+
+        spare = from_environment(threads, max_threads, core_lease)  # checks its bounds
     ckpt = out_dir / "checkpoint.npz"
     wall0 = _time.monotonic()
     parent = {}
@@ -628,6 +639,10 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     else:
         run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
                        checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
+    if spare is not None:
+        # a borrowed thread stays only if the run's steps per second show it pays
+        spare.progress = lambda: run.system.step_count
+        run.tick_hooks.append(spare.poll)
     # a resumed run restores its monitor (and this value) from the checkpoint
     min_onset = (startup_time(system, p["theta"]) if system.time == 0.0 and from_state is None
                  else 0.0)
@@ -656,7 +671,16 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         except Exception as exc:  # observer states missing or unreadable: same as a corrupt file
             raise _corrupt(ckpt, f"its observer states do not restore ({type(exc).__name__}: "
                                  f"{exc})", "checkpoint", remove=True) from None
-        run.run()
+        if spare is None:
+            run.run()
+        else:
+            spare.start()
+            try:
+                run.run()
+            finally:
+                spare.close()
+                set_threads(threads)
+            log.info("spare cores: %s", spare.summary())  # the log only: outputs stay identical
     else:
         try:
             lammps.start()

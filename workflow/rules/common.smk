@@ -95,6 +95,23 @@ def on_slurm():
     return plugin is not None and getattr(plugin, "name", "") == "slurm"
 
 
+def hand_out_spare_cores():
+    """Spare cores (granflow.engine.threads), called at onstart (the executor is known then):
+    on a local machine a numba run takes more threads while cores of the campaign's --cores
+    stand idle (the campaign's tail, a sequential hstop chain) and gives them back when another
+    job needs them; no number depends on the threads.  Handed to the jobs through the
+    environment, not the command line (a different --cores must not rerun anything).  Set
+    GRANFLOW_MAX_THREADS=1 to switch it off.  Off under Slurm (the submitting process and
+    the job steps inside an allocation: a job's cores are its own)."""
+    plugin = getattr(workflow.executor_plugin, "name", "") or ""
+    cores = getattr(workflow, "_cores", None)
+    if plugin.startswith("slurm") or not isinstance(cores, int):
+        return
+    os.environ.setdefault("GRANFLOW_MAX_THREADS", str(cores))
+    os.environ.setdefault("GRANFLOW_CORE_LEASE",
+                          str(Path(".snakemake", "granflow-cores", NAME).resolve()))
+
+
 def cluster_resources(rule):
     """Resources of ``rule``: runtime (min), mem_mb, cpus_per_task, slurm_partition/account."""
 

@@ -105,6 +105,9 @@ class ChuteRun:
         self.checkpoint_every_s = float(checkpoint_every_s)
         self.progress = sys.stderr.isatty() if progress is None else progress
         self.stop_hook = stop_hook
+        # called after every chunk of steps (e.g. SpareCores.poll, which changes the numba
+        # threads: the numbers do not depend on them); each must be cheap
+        self.tick_hooks = []
         self.stop_reason = "t_end reached"
         self.resumed_from = None
 
@@ -162,6 +165,8 @@ class ChuteRun:
                     finished = True
             if bar is not None:
                 bar.update(n)
+            for hook in self.tick_hooks:
+                hook()
             now = _time.monotonic()
             if bar is None and now - last_log > 30.0:
                 e = self.series.data
