@@ -294,3 +294,22 @@ def test_segregation_Ps_follows_the_library_status_rules():
         segregation_Ps_at(lib, 0.9, allow_unidentified=True)
     with pytest.raises(ValueError, match="sigma = 0.6 has no segregation closure"):
         segregation_Ps_at(lib, 0.6)
+
+
+def test_aligned_half_time_of_an_exponential_approach_is_tau_ln2_from_any_start():
+    # s(t) = s_inf (1 - exp(-t / tau)) is memoryless: from any start level the time to half
+    # the remaining way is tau ln 2 (the model's clock shifted to a partly segregated start)
+    from granflow.continuum.experiments import aligned_half_time, level_time
+
+    tau, s_inf = 37.0, -1.7
+    t = np.linspace(0.0, 400.0, 40001)
+    s = s_inf * (1.0 - np.exp(-t / tau))
+    for start in (0.0, 0.3, 0.57, 0.8):
+        s0 = start * s_inf
+        th, shift = aligned_half_time(t, s, s_inf, s0)
+        assert shift == pytest.approx(-tau * np.log1p(-start), abs=1e-3)
+        assert th == pytest.approx(tau * np.log(2.0), rel=1e-5)
+    # a particle run that starts beyond the model's final state cannot be aligned
+    assert all(math.isnan(v) for v in aligned_half_time(t, s, s_inf, 1.1 * s_inf))
+    assert all(math.isnan(v) for v in aligned_half_time(t, s, s_inf, 0.2))
+    assert level_time(t, s, 0.0) == 0.0 and math.isnan(level_time(t, s, 2.0 * s_inf))
