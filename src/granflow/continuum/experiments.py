@@ -156,7 +156,8 @@ def compare_switch(lib, parent_dir, child_dir, *, allow_unidentified=True, extra
         ode_u_high=pred.u_bar.sel(stat="high").values.tolist(),
         closure_status={k[len("closure_status_"):]: v for k, v in pred.attrs.items()
                         if k.startswith("closure_status_")},
-        extrapolated=refused)
+        extrapolated=refused, ode_n_ensemble=int(pred.attrs["n_ensemble"]),
+        ode_n_ensemble_dropped=int(pred.attrs["n_ensemble_dropped"]))
     tt, uu = pred.t.values, g.u_bar.values
     early = (tt > 0) & (tt <= 5.0)
     out["ode_accel0"] = float(np.polyfit(tt[early], uu[early], 1)[0])
