@@ -743,6 +743,8 @@ if flow_closures is not None:
 # model with the library's Ps (symmetric flux) or the run's asymmetric-flux fit (seed 001),
 # with the diffusivity D = c_D (u_bar/h) d_mean^2 of the library (needs the `diffusivity`
 # closure: the continuum comparison's library version has it, the campaign's alone does not).
+# Both are drawn from the run's s(t0): the particles segregate part-way while they fall in, so
+# the model's clock starts where its s reaches s(t0) (half-times from there, both).
 
 # %%
 seg_cmp = [s for s in (comparison or {}).get("segregation", []) if "error" not in s]

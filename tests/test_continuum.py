@@ -294,3 +294,57 @@ def test_segregation_Ps_follows_the_library_status_rules():
         segregation_Ps_at(lib, 0.9, allow_unidentified=True)
     with pytest.raises(ValueError, match="sigma = 0.6 has no segregation closure"):
         segregation_Ps_at(lib, 0.6)
+
+
+def test_aligned_half_time_of_an_exponential_approach_is_tau_ln2_from_any_start():
+    # s(t) = s_inf (1 - exp(-t / tau)) is memoryless: from any start level the time to half
+    # the remaining way is tau ln 2 (the model's clock shifted to a partly segregated start)
+    from granflow.continuum.experiments import aligned_half_time, level_time
+
+    tau, s_inf = 37.0, -1.7
+    t = np.linspace(0.0, 400.0, 40001)
+    s = s_inf * (1.0 - np.exp(-t / tau))
+    for start in (0.0, 0.3, 0.57, 0.8):
+        s0 = start * s_inf
+        th, shift = aligned_half_time(t, s, s_inf, s0)
+        assert shift == pytest.approx(-tau * np.log1p(-start), abs=1e-3)
+        assert th == pytest.approx(tau * np.log(2.0), rel=1e-5)
+    # a particle run that starts beyond the model's final state cannot be aligned
+    assert all(math.isnan(v) for v in aligned_half_time(t, s, s_inf, 1.1 * s_inf))
+    assert all(math.isnan(v) for v in aligned_half_time(t, s, s_inf, 0.2))
+    assert level_time(t, s, 0.0) == 0.0 and math.isnan(level_time(t, s, 2.0 * s_inf))
+
+
+def test_eq50_below_minus_gamma_is_its_arrest_limit_without_a_pole():
+    # gamma < 0 (the paper's fits have both signs): the formula has a pole at
+    # F = -gamma - beta h / A for thin layers; below F = -gamma mu is tan(delta1)
+    p = dict(delta1=21.0, delta2=33.0, A=3.0, beta=0.6, gamma=-0.2)
+    h = 0.5  # pole of the raw formula at F = 0.2 - 0.1 = 0.1
+    F = np.linspace(0.0, 3.0, 3001)
+    mu = mu_eq50(h, F, **p)
+    t1 = math.tan(math.radians(21.0))
+    assert np.all(mu[F <= 0.2] == t1)
+    assert np.all(np.diff(mu) >= 0) and np.all(mu < math.tan(math.radians(33.0)))
+    assert mu[F > 0.2][0] - t1 < 1e-2  # continuous at F = -gamma
+    # above -gamma it is the paper's formula unchanged
+    raw = t1 + (math.tan(math.radians(33.0)) - t1) / (0.6 * h / (3.0 * (F[-1] - 0.2)) + 1.0)
+    assert mu[-1] == pytest.approx(raw, rel=1e-14)
+
+
+def test_uniform_layer_stops_with_an_error_on_a_law_that_jumps_inside_the_flow():
+    # mu jumps across tan(theta) at F = 0.2: the ODE would chatter at the jump without end
+    theta = 25.0
+    jump = FlowClosures(theta=theta, mu=lambda h, F: np.where(np.asarray(F) < 0.2, 0.1, 0.9),
+                        K=1.0, alpha=lambda h: np.ones(np.shape(h)))
+    with pytest.raises(RuntimeError, match="stalled"):
+        uniform_layer(jump, 6.0, 0.3, 100.0)
+
+
+def test_ensemble_members_that_are_no_friction_law_are_dropped():
+    from granflow.continuum.closures import _physical_friction
+
+    ok = dict(delta1=20.0, delta2=33.0, A=3.0, beta=0.2, gamma=-0.1)
+    assert _physical_friction(ok)
+    for bad in (dict(delta1=0.0), dict(delta2=19.0), dict(A=-1.0), dict(beta=0.0),
+                dict(gamma=float("nan"))):
+        assert not _physical_friction({**ok, **bad}), bad

@@ -61,6 +61,17 @@ def test_absurd_run_refused_by_simulate_with_the_estimate(tmp_path, change, what
     assert peak < 3e9
 
 
+def test_a_vanishing_base_diameter_is_refused_naming_lam():
+    # the smallest normal float as lambda made lambda**3 underflow to 0: ZeroDivisionError
+    # (found by hypothesis in CI); now its base is an infinite number of particles
+    params = dict(theta=26.0, H=4.0, lam=2.2250738585072014e-308, Lx=6.0, Ly=4.0, t_end=12.0,
+                  t_c=0.02, base_layers=4.0)
+    assert estimate_run_size(validate_params(params, check_machine=False))["n_base"] == \
+        float("inf")
+    with pytest.raises(ValueError, match=r"inf base particles.*a larger lam"):
+        validate_params(params)
+
+
 def test_memory_limit_comes_from_the_machine():
     limit = machine_memory()
     import os

@@ -220,7 +220,7 @@ def validate_params(params: dict, *, check_machine: bool = True) -> dict:
             raise ValueError(
                 f"run too large for this machine: it needs about {_fmt_bytes(size['memory_bytes'])}"
                 f" of memory ({size['explanation']}), the machine has {_fmt_bytes(limit)}; "
-                "allowed: a run whose estimate fits, i.e. fewer particles (H, Lx, Ly: "
+                "allowed: a run whose estimate fits, i.e. fewer particles (H, Lx, Ly, a larger lam: "
                 f"{size['n_particles']:.3g} now), fewer samples (t_end / sample_interval: "
                 f"{size['n_samples']:.3g} now) or a coarser profile grid (cg_dz, cg_window: "
                 f"{size['n_profile_values']:.3g} stored values now)")
@@ -266,8 +266,9 @@ def estimate_run_size(p: dict) -> dict:
     n_base = n_prep = 0.0
     if lam > 0:
         # the kept band is 1.7 lambda thick, the preparation fill base_layers lambda (packing 0.6)
-        n_base = 1.7 * lam * area * 0.6 / (math.pi / 6 * lam**3)
-        n_prep = p["base_layers"] * lam * area * 0.6 / (math.pi / 6 * lam**3)
+        # (divided by lambda twice, not by lambda**3: a tiny lambda gives inf, never 0 / 0)
+        n_base = 1.7 * area * 0.6 / (math.pi / 6) / lam / lam
+        n_prep = p["base_layers"] * area * 0.6 / (math.pi / 6) / lam / lam
     n_particles = max(n_flow + n_base, n_prep)
     t_c = min(x for x in (p["t_c"], p.get("base_t_c")) if x is not None)
     dt = t_c / p["steps_per_collision"]

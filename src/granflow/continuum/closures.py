@@ -41,6 +41,23 @@ def _const(value):
     return f
 
 
+class _Members(list):
+    """Ensemble members, with the number of samples dropped as no friction law."""
+
+    ensemble_dropped = 0
+
+
+def _physical_friction(p) -> bool:
+    """Whether Eq. (50)'s parameters describe a friction law: 0 < delta1 < delta2 < 90 deg,
+    A > 0, beta > 0 (all finite)."""
+    try:
+        d1, d2, A, beta = (float(p[k]) for k in ("delta1", "delta2", "A", "beta"))
+    except (KeyError, TypeError, ValueError):
+        return False
+    return bool(0.0 < d1 < d2 < 90.0 and A > 0.0 and beta > 0.0
+                and math.isfinite(float(p.get("gamma", 0.0))))
+
+
 @dataclass(frozen=True)
 class FlowClosures:
     """mu(h, F), alpha(h) and K at one inclination ``theta`` (degrees).
@@ -158,10 +175,17 @@ class FlowClosures:
         if m < 10:
             raise ValueError(f"the friction closure stores no usable ensemble ({m} samples)")
         n = m if n is None else min(int(n), m)
-        return [FlowClosures.from_library(self._lib, self.theta, self._sel["lam"],
-                                          contact_law=self._sel["contact_law"],
-                                          allow_unidentified=self._sel["allow_unidentified"],
-                                          member=i) for i in range(n)]
+        # a bootstrap refit can land on parameters that are no friction law (delta1 <= 0,
+        # delta2 <= delta1, A <= 0 or beta <= 0: mu jumps or has a pole inside the flow); such
+        # samples are dropped and counted (``ensemble_dropped`` on the returned list)
+        rows = fr.samples(("delta1", "delta2", "A", "beta", "gamma"))
+        keep = [i for i in range(n) if _physical_friction(rows[i % len(rows)])]
+        out = _Members(FlowClosures.from_library(self._lib, self.theta, self._sel["lam"],
+                                                 contact_law=self._sel["contact_law"],
+                                                 allow_unidentified=self._sel["allow_unidentified"],
+                                                 member=i) for i in keep)
+        out.ensemble_dropped = n - len(keep)
+        return out
 
     # ------------------------------------------------------------------ checks and helpers
     def check(self, h, F, *, extrapolate: bool = False):

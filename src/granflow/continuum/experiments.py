@@ -13,7 +13,10 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   (:mod:`granflow.coarse.columns`), and the shallow-layer solver started from the same h(x),
   u_bar(x): positions of the peak and of the front over time.
 * **Segregation** (:func:`compare_segregation`): the campaign's bidisperse runs' indicator s(t)
-  against T-eq. (27) with the library's Ps and the measured diffusivity D (both flux models).
+  against T-eq. (27) with the library's Ps and the measured diffusivity D (both flux models);
+  the half-time counts from the run's s0 at its flow start t0 in both, the model's clock shifted
+  to where it reaches s0 (:func:`aligned_half_time`): the particles segregate part-way while
+  they fall in, before the sheared state the model assumes exists.
 * **Diffusivity** (:func:`diffusivity_fit`): D of the switch runs' steady windows ->
   a ``diffusivity`` closure, added to a new version of the campaign's library
   (:func:`library_with_diffusivity`).
@@ -153,7 +156,8 @@ def compare_switch(lib, parent_dir, child_dir, *, allow_unidentified=True, extra
         ode_u_high=pred.u_bar.sel(stat="high").values.tolist(),
         closure_status={k[len("closure_status_"):]: v for k, v in pred.attrs.items()
                         if k.startswith("closure_status_")},
-        extrapolated=refused)
+        extrapolated=refused, ode_n_ensemble=int(pred.attrs["n_ensemble"]),
+        ode_n_ensemble_dropped=int(pred.attrs["n_ensemble_dropped"]))
     tt, uu = pred.t.values, g.u_bar.values
     early = (tt > 0) & (tt <= 5.0)
     out["ode_accel0"] = float(np.polyfit(tt[early], uu[early], 1)[0])
@@ -437,6 +441,28 @@ def segregation_measurement(run_dir, smooth_bins: int = 3) -> dict:
             "t": (t[after] - t0).tolist(), "s": (vs[after] - s0).tolist()}
 
 
+def level_time(t, s, level: float) -> float:
+    """First time s(t) reaches ``level`` from its start s[0] (linear interpolation; t[0] if it
+    starts there, NaN if never)."""
+    s = np.asarray(s, float)
+    if abs(level - s[0]) <= 1e-12 * max(1.0, abs(level)):
+        return float(np.asarray(t, float)[0])
+    from .segregation import half_time
+
+    return half_time(t, s, float(s[0]), 2.0 * level - float(s[0]))
+
+
+def aligned_half_time(t, s, s_final: float, s_start: float) -> tuple[float, float]:
+    """Half-time of a model curve s(t) counted from where it reaches ``s_start`` (a particle
+    run's segregation when its shear flow has started) to half the way from there to
+    ``s_final``; returns (half-time, the model time at s_start).  NaN for both when s_start
+    lies beyond s_final (or on the other side of zero): the model never passes through it."""
+    if not abs(s_final) > abs(s_start) or s_final * s_start < 0:
+        return math.nan, math.nan
+    t_shift = level_time(t, s, s_start)
+    return level_time(t, s, s_start + 0.5 * (s_final - s_start)) - t_shift, t_shift
+
+
 def segregation_Ps_at(lib, sigma, *, contact_law=None, allow_unidentified=False):
     """Ps of the library's per-size-ratio ``segregation`` closure at ``sigma`` and its status.
 
@@ -489,18 +515,32 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
                Ps_asym=ex.get("asymmetric_Ps"), kappa=ex.get("asymmetric_kappa"))
     zeta = np.asarray(prof["zeta"], float)
     phi_p = np.asarray(prof["phi"], float)
+    s0 = float(m["s0"])  # the particle run's s when its flow has started (t0)
     for name, kw in (("symmetric", dict(Ps=Ps, flux="symmetric")),
                      ("asymmetric", dict(Ps=ex.get("asymmetric_Ps", Ps), flux="asymmetric",
                                          kappa=min(max(float(ex.get("asymmetric_kappa", 0.0)),
                                                        0.0), 0.99)))):
-        res = segregation_layer(D=D, h=m["h"], phi0=phi0, t_end=t_end, n=200, n_out=201, **kw)
+        # the model starts mixed under steady shear; the particle run has segregated part-way
+        # during its insertion fall before its shear is established (t0, s0).  Both clocks start
+        # where s = s0: the model's at t_shift, where it reaches the particle run's s0; each
+        # half-time runs from there to half the way to its own final segregation.
+        res = segregation_layer(D=D, h=m["h"], phi0=phi0, t_end=2.0 * t_end, n=200, n_out=401,
+                                **kw)
+        t_mod, s_mod = res.t.values, res.indicator.values
+        s_inf = float(res.indicator_steady)
+        th, t_shift = aligned_half_time(t_mod, s_mod, s_inf, s0)
         # D's uncertainty: t_half scales as 1/D exactly (time scale h^2/D)
-        th = float(res.t_half)
-        phi_model = np.interp(zeta, res.zeta.values, res.phi.values[-1])
+        keep = t_mod >= (t_shift if math.isfinite(t_shift) else 0.0)
+        # the final profile at the particle run's end on the shifted clock
+        k_end = int(np.argmin(np.abs(t_mod - ((t_shift if math.isfinite(t_shift) else 0.0)
+                                              + t_end))))
+        phi_model = np.interp(zeta, res.zeta.values, res.phi.values[k_end])
         out[name] = {"t_half": th, "t_half_std": th * D_std / D,
-                     "s_final": float(res.indicator.values[-1]),
-                     "s_steady": float(res.indicator_steady), "t": res.t.values.tolist(),
-                     "s": res.indicator.values.tolist(),
+                     "t_half_from_mixed": float(res.t_half), "t_shift": t_shift,
+                     "s_final": float(s_mod[-1]),
+                     "s_steady": s_inf,
+                     "t": (t_mod[keep] - t_mod[keep][0]).tolist(),
+                     "s": (s_mod[keep] - (s0 if math.isfinite(t_shift) else 0.0)).tolist(),
                      "err_t_half": th / m["t_half"] - 1.0 if m["t_half"] > 0 else math.nan,
                      "phi_rms_vs_particles": float(np.sqrt(np.mean((phi_model - phi_p) ** 2))),
                      "phi_model": phi_model.tolist()}

@@ -47,6 +47,10 @@ from .. import units as U
 from .closures import FlowClosures
 from .output import finish
 
+#: right-hand-side evaluations after which the uniform-layer ODE is declared stalled (a smooth
+#: law needs a few thousand for t_end = 400)
+MAX_RHS_CALLS = 200_000
+
 EQ = "Weinhart et al. 2012 Eq. (34) for a uniform layer: du/dt = g cos(theta) (tan(theta) - mu(h, F))"
 
 
@@ -70,7 +74,15 @@ def uniform_layer(closures: FlowClosures, h: float, u0: float, t_end: float, *,
     _check_inputs(h, u0, t_end)
     gc = closures.g_cos
 
+    calls = [0]
+
     def rhs(t, y):
+        # a friction law with a jump inside the flow makes the solver chatter at the jump
+        # with ever smaller steps: stop with an error instead of running without end
+        calls[0] += 1
+        if calls[0] > MAX_RHS_CALLS:
+            raise RuntimeError(f"uniform-layer ODE stalled ({MAX_RHS_CALLS} evaluations before "
+                               f"t = {t:.4g} of {t_end:g}): mu(h, F) jumps inside the flow")
         return [float(closures.acceleration(h, y[0]))]
 
     mu0 = float(closures.mu(h, 0.0))
@@ -192,10 +204,18 @@ def switch_prediction(lib_or_closures, h: float, u0: float, theta: float, t_end:
     F0 = u0 / math.sqrt(central.g_cos * h)
     F_inf = central.steady_froude(h)
     central.check(h, [F0] + ([F_inf] if math.isfinite(F_inf) else []), extrapolate=extrapolate)
-    members = [central] + (central.ensemble(n_ensemble) if uncertainty else [])
+    ens = central.ensemble(n_ensemble) if uncertainty else []
+    members = [central] + list(ens)
     curves, u_st, taus, tl = [], [], [], []
-    for c in members:
-        ds = uniform_layer(c, h, u0, t_end, n_out=n_out)
+    stalled = 0
+    for k, c in enumerate(members):
+        try:
+            ds = uniform_layer(c, h, u0, t_end, n_out=n_out)
+        except RuntimeError:
+            if k == 0:
+                raise
+            stalled += 1  # this member is left out of the statistics (counted in the attributes)
+            continue
         curves.append(ds.u_bar.values)
         u_st.append(float(ds.u_steady))
         tl.append(float(ds.tau_linear))
@@ -233,7 +253,9 @@ def switch_prediction(lib_or_closures, h: float, u0: float, theta: float, t_end:
                          {"long_name": "statistic: value (central parameters), std, low/high "
                                        "(16th/84th percentile over the closure ensemble)"})})
     out.attrs.update(central.attrs(), h=h, u0=u0, froude0=F0, equation=EQ,
-                     n_ensemble=len(members) - 1, extrapolate=int(bool(extrapolate)),
+                     n_ensemble=len(members) - 1 - stalled,
+                     n_ensemble_dropped=int(getattr(ens, "ensemble_dropped", 0)) + stalled,
+                     extrapolate=int(bool(extrapolate)),
                      uncertainty_method="ODE solved for every stored parameter sample of the "
                                         "friction closure (joint hstop/flow-rule ensemble)")
     return finish(out, "uniform_layer_prediction", "uniform-layer prediction after a change of "

@@ -44,12 +44,20 @@ def froude_eq47(h, theta, beta, gamma, delta1, delta2, A, d: float = 1.0):
 
 
 def mu_eq50(h, F, delta1, delta2, A, beta, gamma, d: float = 1.0):
-    """Eq. (50): basal friction mu(h, F) (delta1, delta2 in degrees; A in d)."""
+    """Eq. (50): basal friction mu(h, F) (delta1, delta2 in degrees; A in d).
+
+    Eq. (50) inverts the flow rule F = beta h / hstop(mu) - gamma, so it holds for F + gamma
+    > 0 only; with the paper's gamma < 0 the formula has a pole at F = -gamma - beta h / A
+    (thin layers) and is meaningless below F = -gamma.  There mu is its arrest limit
+    tan(delta1) (h / hstop -> 0): continuous at F = -gamma, non-decreasing in F, no pole
+    (a pole made the uniform-layer ODE of one closure-ensemble member chatter without end)."""
     h = np.asarray(h, dtype=float)
     F = np.asarray(F, dtype=float)
     t1, t2 = math.tan(math.radians(delta1)), math.tan(math.radians(delta2))
+    x = F + gamma
     with np.errstate(divide="ignore", invalid="ignore"):
-        out = t1 + (t2 - t1) / (beta * h / (A * d * (F + gamma)) + 1.0)
+        out = t1 + (t2 - t1) / (beta * h / (A * d * x) + 1.0)
+    out = np.where(x > 0, out, np.where(np.isnan(x), np.nan, t1 + 0.0 * h))
     return out[()] if np.ndim(out) == 0 else out
 
 
