@@ -529,16 +529,15 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
         t_mod, s_mod = res.t.values, res.indicator.values
         s_inf = float(res.indicator_steady)
         th, t_shift = aligned_half_time(t_mod, s_mod, s_inf, s0)
-        # D's uncertainty: t_half scales as 1/D exactly (time scale h^2/D)
-        keep = t_mod >= (t_shift if math.isfinite(t_shift) else 0.0)
+        start = t_shift if math.isfinite(t_shift) else 0.0  # unaligned: from the mixed start
+        keep = t_mod >= start
         # the final profile at the particle run's end on the shifted clock
-        k_end = int(np.argmin(np.abs(t_mod - ((t_shift if math.isfinite(t_shift) else 0.0)
-                                              + t_end))))
+        k_end = int(np.argmin(np.abs(t_mod - (start + t_end))))
         phi_model = np.interp(zeta, res.zeta.values, res.phi.values[k_end])
+        # D's uncertainty: t_half scales as 1/D exactly (time scale h^2/D)
         out[name] = {"t_half": th, "t_half_std": th * D_std / D,
                      "t_half_from_mixed": float(res.t_half), "t_shift": t_shift,
-                     "s_final": float(s_mod[-1]),
-                     "s_steady": s_inf,
+                     "s_final": float(s_mod[-1]), "s_steady": s_inf,
                      "t": (t_mod[keep] - t_mod[keep][0]).tolist(),
                      "s": (s_mod[keep] - (s0 if math.isfinite(t_shift) else 0.0)).tolist(),
                      "err_t_half": th / m["t_half"] - 1.0 if m["t_half"] > 0 else math.nan,

@@ -25,8 +25,9 @@ runs* without changing a single bit of its output.  :class:`SpareCores` does tha
   benchmark chute (bench_engine_threads.py) 1.43x faster.
 
 Nothing here changes a number: the thread count is recorded (wall seconds per count) in the
-run's ``simulate.log`` only, so every output file stays identical.  Off on Slurm (a job's cores are its allocation) and where ``/proc/stat``
-or ``fcntl`` are missing (the run keeps its threads).
+run's ``simulate.log`` only, so every output file stays identical.  Off on Slurm (a job's
+cores are its allocation) and where ``/proc/stat`` or ``fcntl`` are missing (the run keeps its
+threads).
 """
 
 from __future__ import annotations
@@ -262,7 +263,8 @@ class SpareCores:
             if lease is not None:
                 lease.give(self.base)
             self._set(self.base, now)
-        elif (self.threads < min(self.max_threads, self.ceiling) and self.cores - others - self.threads >= TAKE
+        elif (self.threads < min(self.max_threads, self.ceiling)
+              and self.cores - others - self.threads >= TAKE
               and (lease is None or not lease.others_want())):
             if lease is None or lease.take():
                 if rate is not None:
@@ -271,15 +273,15 @@ class SpareCores:
         return self.threads
 
     def summary(self) -> dict:
-        """Wall seconds per thread count (JSON keys: strings)."""
+        """Wall seconds and measured speed-up per thread count (JSON keys: strings), and the
+        count the run stayed below after a thread did not pay."""
         return {"max_threads": self.max_threads, "enabled": self.enabled,
                 "wall_s_at_threads": {str(k): round(v, 3) for k, v in sorted(self.record.items())},
                 "speedup_at_threads": {str(k): v for k, v in sorted(self.speedups.items())},
                 "ceiling": self.ceiling}
 
 
-def from_environment(threads: int, max_threads: int | None = None, lease_dir=None,
-                     progress=None):
+def from_environment(threads: int, max_threads: int | None = None, lease_dir=None):
     """A :class:`SpareCores` from the arguments or the workflow's environment, or None."""
     if max_threads is None:
         env = os.environ.get(ENV_MAX_THREADS, "").strip()
@@ -297,5 +299,5 @@ def from_environment(threads: int, max_threads: int | None = None, lease_dir=Non
         lease_dir = os.environ.get(ENV_LEASE) or None
     if max_threads is None or max_threads <= (threads or 1):
         return None
-    spare = SpareCores(max_threads, base=threads or 1, lease_dir=lease_dir, progress=progress)
+    spare = SpareCores(max_threads, base=threads or 1, lease_dir=lease_dir)
     return spare if spare.enabled else None

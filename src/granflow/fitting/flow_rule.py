@@ -57,7 +57,7 @@ def mu_eq50(h, F, delta1, delta2, A, beta, gamma, d: float = 1.0):
     x = F + gamma
     with np.errstate(divide="ignore", invalid="ignore"):
         out = t1 + (t2 - t1) / (beta * h / (A * d * x) + 1.0)
-    out = np.where(x > 0, out, np.where(np.isnan(x), np.nan, t1 + 0.0 * h))
+    out = np.where((x > 0) | np.isnan(x), out, t1 + 0.0 * h)  # 0 * h: NaN h stays NaN
     return out[()] if np.ndim(out) == 0 else out
 
 
