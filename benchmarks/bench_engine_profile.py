@@ -77,6 +77,8 @@ def _no_sort(pos, vel, omega, vel_p, omega_p, force, torque, radius, inv_mass, m
 
 
 _sort_particles = K.sort_particles if SORTS else _no_sort
+#: the pair pass keeps the rows of steps nobody reads in block buffers (2026-11-25)
+LOCAL_ROWS = "keep_rows" in K.pair_pass.py_func.__code__.co_varnames
 _timer = time.process_time if CLOCK == CLOCK_PROCESS_CPUTIME_ID else time.perf_counter
 
 
@@ -254,6 +256,8 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     while n_mobile < n and not fixed[n_mobile]:
         n_mobile += 1
     nreb = 0
+    lrow = np.empty((work.shape[0], K.PAIR_BLOCK, 9))
+    lext = np.empty((work.shape[0], K.PAIR_BLOCK, 3))
     t0 = _now(buf)
     K.particle_pass(False, False, False, True, False, pos, vel, omega, vel_p, omega_p, force,
                     torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
@@ -298,7 +302,15 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
             t2 = _now(buf)
             acc[NEAR] += t2 - t1
             t1 = t2
-        if BALANCED:
+        if LOCAL_ROWS:
+            K.split_runs(near_n[0], blk_pair_nc, nslots, run_start)
+            K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred,
+                        hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow,
+                        cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel,
+                        blk_pair_nc, run_start, force, torque, near, near_n, ntouch,
+                        step + 1 == nsteps, lrow, lext)
+            b1 = run_start[1]
+        elif BALANCED:
             K.split_runs(near_n[0], blk_pair_nc, nslots, run_start)
             K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred,
                         hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow,
