@@ -65,6 +65,20 @@ CLOCK = CLOCK_PROCESS_CPUTIME_ID if os.environ.get("GRANFLOW_PROFILE_CLOCK", "cp
 FORCE_SLOTS = 0
 #: the engine balances the pair pass's runs of blocks (``kernels.split_runs``; since 2026-11-24)
 BALANCED = hasattr(K, "split_runs")
+#: the engine keeps large systems in spatial order (``kernels.sort_particles``; 2026-11-25)
+SORTS = hasattr(K, "sort_particles")
+
+
+@njit
+def _no_sort(pos, vel, omega, vel_p, omega_p, force, torque, radius, inv_mass, mass, inv_inertia,
+             inertia, ptype, fixed, ids, level_of, wall_hist, wall_dmax, wall_rows, wall_state,
+             Lx, Ly, pi, pj, hist_t, hist_dmax):
+    return pi, pj, hist_t, hist_dmax
+
+
+_sort_particles = K.sort_particles if SORTS else _no_sort
+#: the pair pass keeps the rows of steps nobody reads in block buffers (2026-11-25)
+LOCAL_ROWS = "keep_rows" in K.pair_pass.py_func.__code__.co_varnames
 _timer = time.process_time if CLOCK == CLOCK_PROCESS_CPUTIME_ID else time.perf_counter
 
 
@@ -156,7 +170,8 @@ def profile(state, nsteps, new_api):
     t0 = _timer()
     t.step(nsteps)
     engine_wall = _timer() - t0
-    same = all(np.array_equal(getattr(s, k), getattr(t, k)) for k in ("pos", "vel", "omega"))
+    same = all(np.array_equal(getattr(s, k), getattr(t, k))
+               for k in ("pos", "vel", "omega", "ids") if hasattr(t, k))
     return acc, wall, engine_wall, same, labels
 
 
@@ -219,8 +234,11 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
               pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, near_tmp,
               near_count, near, near_n, ntouch, near_ref, near_ok, pos_ref, skin, level_of,
               level_cell, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
-              law_tab, coef, all_linear, work, dt, nslots, buf, acc):
-    """``kernels.advance`` (issue 15) with clock reads; the guards are left out."""
+              law_tab, coef, all_linear, work, dt, nslots, buf, acc, inertia, ids, sort_min,
+              sort_every):
+    """``kernels.advance`` (issue 15) with clock reads; the guards are left out.  The spatial
+    sort of large systems (``kernels.sort_particles``, where the engine has it) counts as part
+    of the rebuild."""
     n = pos.shape[0]
     nblock = (n + K.PARTICLE_BLOCK - 1) // K.PARTICLE_BLOCK
     blk_overlap = np.zeros(nblock)
@@ -234,6 +252,12 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
     run_start = np.empty(nslots + 1, dtype=np.int64)
+    n_mobile = 0
+    while n_mobile < n and not fixed[n_mobile]:
+        n_mobile += 1
+    nreb = 0
+    lrow = np.empty((work.shape[0], K.PAIR_BLOCK, 9))
+    lext = np.empty((work.shape[0], K.PAIR_BLOCK, 3))
     t0 = _now(buf)
     K.particle_pass(False, False, False, True, False, pos, vel, omega, vel_p, omega_p, force,
                     torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
@@ -251,6 +275,12 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
         t1 = _now(buf)
         acc[DISP] += t1 - t0
         if bound > half_skin:
+            if SORTS and n_mobile >= sort_min and nreb % sort_every == 0:
+                pi, pj, hist_t, hist_dmax = _sort_particles(
+                    pos, vel, omega, vel_p, omega_p, force, torque, radius, inv_mass, mass,
+                    inv_inertia, inertia, ptype, fixed, ids, level_of, wall_hist, wall_dmax,
+                    wall_rows, wall_state, Lx, Ly, pi, pj, hist_t, hist_dmax)
+            nreb += 1
             pi, pj, hist_t, hist_dmax = K.rebuild_pairs(pos, radius, fixed, Lx, Ly, skin,
                                                         level_of, level_cell, pi, pj, hist_t,
                                                         hist_dmax)
@@ -272,7 +302,15 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
             t2 = _now(buf)
             acc[NEAR] += t2 - t1
             t1 = t2
-        if BALANCED:
+        if LOCAL_ROWS:
+            K.split_runs(near_n[0], blk_pair_nc, nslots, run_start)
+            K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred,
+                        hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow,
+                        cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel,
+                        blk_pair_nc, run_start, force, torque, near, near_n, ntouch,
+                        step + 1 == nsteps, lrow, lext)
+            b1 = run_start[1]
+        elif BALANCED:
             K.split_runs(near_n[0], blk_pair_nc, nslots, run_start)
             K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred,
                         hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow,
@@ -312,7 +350,9 @@ def new_profile(s, nsteps):
         s._inv_inertia, s.ptype, s.fixed, s.Lx, s.Ly, s.gvec, s.pi, s.pj, s.hist_t, s.hist_dmax,
         *s._pair, s.pos_ref, s.skin, s._level_of, s._level_cell, s.use_wall, s.wall_type,
         s.wall_hist, s.wall_dmax, s.wall_rows, s.wall_state, *s._coefficients(), s._work, s.dt,
-        numba.get_num_threads() if not FORCE_SLOTS else FORCE_SLOTS, buf, acc)
+        numba.get_num_threads() if not FORCE_SLOTS else FORCE_SLOTS, buf, acc, s.inertia,
+        s.ids if SORTS else np.zeros(0, np.int64), getattr(s, "sort_min_mobile", 0),
+        getattr(s, "sort_every", 1))
     wall = _timer() - t0
     labels = {"pair_forces": "pair pass (contacts + sums)",
               "accumulate": "particle pass (kicks+drift+wall+disp)",

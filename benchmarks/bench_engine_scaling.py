@@ -11,8 +11,14 @@ smallest system, the load average, and the memory: bytes per particle held by th
 arrays after the run (particles, pair list, contact history and rows, near list, work rows),
 and the growth of the process's peak resident memory per particle.
 
+With ``--lammps`` the peer runs the same tiled systems in the same rounds (LAMMPS
+``gran/hooke/history``, same species, skin, dt and steps, one process, its default spatial sort
+of the atoms every 1000 steps; input as in ``bench_engine_vs_lammps.py``) and the table adds its
+particle-steps per second, its own ratio to its smallest system, and granflow / LAMMPS per N:
+whether a drop with N is the engine's or the machine's memory system's.
+
     .venv/bin/python benchmarks/bench_engine_scaling.py [--tiles 1 2 3 5 7 10] [--repeat 3]
-        [--threads 1]
+        [--threads 1] [--lammps]
 """
 
 from __future__ import annotations
@@ -73,6 +79,20 @@ def tiled_system(state, kx, ky):
     return s
 
 
+def lammps_rate(s, k, steps, H) -> float:
+    """LAMMPS particle-steps per second (its loop time) on the tiled system ``s``."""
+    lx, ly = SMALL_BOX
+    B.LX, B.LY = lx * k, ly * k
+    try:
+        out = B.run_lammps(B.state_of(s, H), steps, 1, s.dt, 1, B.WORK / f"scaling_lammps_{k}")
+    finally:
+        B.LX, B.LY = SMALL_BOX
+    print(f"           LAMMPS: N = {out['n']:7d}, {steps:6d} steps, "
+          f"{out['n'] * steps / out['loop']:.3g} particle-steps/s, {out['rebuilds']} rebuilds",
+          flush=True)
+    return out["n"] * steps / out["loop"]
+
+
 def engine_bytes(s) -> int:
     """Bytes held by the engine's arrays (particles, pairs, rows, near list, work rows)."""
     total = 0
@@ -96,6 +116,8 @@ def main(argv=None):
     ap.add_argument("--seconds", type=float, default=3.0, help="work per run (estimate)")
     ap.add_argument("--min-steps", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--lammps", action="store_true",
+                    help="run LAMMPS on the same systems (peer scaling, same rounds)")
     args = ap.parse_args(argv)
     import numba
 
@@ -107,6 +129,7 @@ def main(argv=None):
     print(f"dense chute tiled from a {SMALL_BOX[0]:g} x {SMALL_BOX[1]:g} box "
           f"(N0 = {w.n}), {args.threads} thread(s), {args.repeat} round(s)")
     rows = {k: [] for k in args.tiles}
+    lrows = {k: [] for k in args.tiles}
     mem = {}
     rss0 = maxrss_bytes()
     for r in range(args.repeat):
@@ -118,6 +141,8 @@ def main(argv=None):
             s.step(steps)
             wall = time.perf_counter() - t0
             rows[k].append((s.n, steps, s.n * steps / wall, load, s.n_rebuilds))
+            if args.lammps:
+                lrows[k].append(lammps_rate(tiled_system(state, k, k), k, steps, state["H"]))
             if r == 0:
                 rss = maxrss_bytes()
                 mem[k] = (engine_bytes(s) / s.n, max(rss - rss0, 0) / s.n, len(s.pi) / s.n)
@@ -136,6 +161,17 @@ def main(argv=None):
         eb, rb, ppn = mem[k]
         print(f"{n:>8d} {best:>11.3g} {med:>12.3g} {best / ref:>13.3f} {ppn:>8.2f} {eb:>10.0f} "
               f"{rb:>12.0f} {max(x[3] for x in rows[k]):>6.2f}")
+    if args.lammps:
+        print()
+        print(f"{'N':>8} {'LAMMPS best ps/s':>17} {'best/best(N0)':>13} {'granflow/LAMMPS best':>21} "
+              f"{'median of rounds':>17}")
+        lref = max(lrows[args.tiles[0]])
+        for k in args.tiles:
+            n = rows[k][0][0]
+            lb = max(lrows[k])
+            gb = max(x[2] for x in rows[k])
+            med = float(np.median([g[2] / l for g, l in zip(rows[k], lrows[k])]))
+            print(f"{n:>8d} {lb:>17.3g} {lb / lref:>13.3f} {gb / lb:>21.3f} {med:>17.3f}")
     print("(engine B/N: bytes of the engine's arrays per particle after the run; peak RSS B/N: "
           "growth of the process's peak resident memory when that size first ran, per "
           "particle — it includes the temporaries of a rebuild)")

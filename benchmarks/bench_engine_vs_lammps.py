@@ -459,6 +459,10 @@ def report(args, gruns, lruns):
     print(f"ratio granflow/LAMMPS = {gb / lb:.3f}   (particle-steps/s, best of each; "
           f"medians: {gm / lm_:.3f}; vs LAMMPS process wall: {gb / lwb:.3f}; per CPU-second: "
           f"{gc / lc:.3f}; numba warm-up excluded)")
+    per_round = [lr["loop"] / gr["wall"] for gr, lr in zip(gruns, lruns)]
+    print("per round granflow/LAMMPS (Loop time): "
+          + ", ".join(f"{x:.3f}" for x in per_round)
+          + f"; median {float(np.median(per_round)):.3f}")
     print("(CPU %: CPU time / wall time of the timed section, below 100 x threads when other "
           "jobs take the cores; load avg: 1-min load average of the machine)")
     print()

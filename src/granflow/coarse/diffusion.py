@@ -54,7 +54,9 @@ class TracerObserver:
         self._calls += 1
         if (self._calls - 1) % self.every:
             return
-        flow = ~system.fixed
+        # in identity order: the engine may re-sort large systems (ParticleSystem.ids)
+        order = system.id_order() if hasattr(system, "id_order") else np.arange(len(system.fixed))
+        flow = order[~system.fixed[order]]
         if self.diameter is None:
             self.diameter = 2.0 * system.radius[flow]
         self.times.append(float(system.time))

@@ -7,7 +7,11 @@ overlaps).  Fixed particles (the rough base) have infinite mass, feel no body fo
 move.  Stepping is delegated to the numba kernels in :mod:`granflow.engine.lib.kernels`.
 
 Particle order convention: mobile (flow) particles first, fixed particles last, so that in every
-listed pair i < j a flow-base contact has the flow particle as i.
+listed pair i < j a flow-base contact has the flow particle as i.  Systems with at least
+``kernels.SORT_MIN_MOBILE`` mobile particles are kept in spatial order (re-sorted at every
+``SORT_EVERY``-th neighbour-list rebuild, for the caches): the index of a particle then changes
+during a run, and :attr:`ParticleSystem.ids` holds each one's identity (its index when the
+particles were set); :meth:`ParticleSystem.id_order` gives the permutation back to it.
 
 The whole state round-trips through :meth:`ParticleSystem.state_dict` /
 :meth:`ParticleSystem.from_state_dict`, so that a resumed run continues bit for bit.
@@ -69,6 +73,9 @@ class ParticleSystem:
         self.gvec = np.asarray(gvec, dtype=np.float64)
         self.use_wall = bool(use_wall)
         self.wall_type = int(wall_type) if wall_type is not None else 0
+        #: spatial order of the particles (see the module docstring); tests lower the threshold
+        self.sort_min_mobile = K.SORT_MIN_MOBILE
+        self.sort_every = K.SORT_EVERY
         self.time = 0.0
         self.step_count = 0
         self.n_rebuilds = 0
@@ -89,7 +96,7 @@ class ParticleSystem:
         self.radius = 0.5 * np.asarray(diameter, dtype=np.float64)
         self.mass = np.asarray(density, dtype=np.float64) * math.pi / 6.0 * (2 * self.radius) ** 3
         self.inertia = 0.4 * self.mass * self.radius**2  # solid sphere: I = m d^2 / 10
-        self.ptype = np.asarray(ptype, dtype=np.int64)
+        self.ptype = np.array(ptype, dtype=np.int64)  # own, contiguous: sorted in place
         self.fixed = np.asarray(fixed, dtype=bool)
         self.wall_hist = np.zeros((n, 3))
         self.wall_dmax = np.zeros(n)
@@ -100,6 +107,7 @@ class ParticleSystem:
         self.hist_t = np.zeros((0, 3))
         self.hist_dmax = np.zeros(0)
         self.pos_ref = self.pos.copy()
+        self.ids = np.arange(n, dtype=np.int64)
         self._pair = None
         self._coef_src = None
         self._slots_override = None
@@ -126,6 +134,12 @@ class ParticleSystem:
     @property
     def n(self) -> int:
         return len(self.radius)
+
+    def id_order(self) -> np.ndarray:
+        """Indices that put the per-particle arrays in identity order: ``pos[id_order()][k]``
+        is the particle that had index k when the particles were set (particles keep their
+        identity when the engine re-sorts them, :attr:`ids`)."""
+        return np.argsort(self.ids, kind="stable")
 
     @property
     def inv_mass(self):
@@ -211,7 +225,8 @@ class ParticleSystem:
             *self._pair, self.pos_ref, self.skin, self._level_of, self._level_cell,
             self.use_wall, self.wall_type, self.wall_hist, self.wall_dmax, self.wall_rows,
             self.wall_state, *self._coefficients(), self._work, self.dt, max_allowed,
-            self._slots())
+            self._slots(), self.inertia, self.ids, int(self.sort_min_mobile),
+            int(self.sort_every), int(self.n_rebuilds))
         self.step_count += int(done)
         self.time = self.step_count * self.dt
         self.n_rebuilds += int(nreb)
@@ -274,6 +289,7 @@ class ParticleSystem:
     # ---------------------------------------------------------------- checkpoints
     def state_dict(self) -> dict:
         state = {name: getattr(self, name) for name in self._ARRAYS}
+        state["ids"] = self.ids
         for name in self._PAIR_SAVED:
             state["pair_" + name] = self._pair_array(name)
         meta = {
@@ -282,6 +298,7 @@ class ParticleSystem:
             "step_count": self.step_count, "n_rebuilds": self.n_rebuilds,
             "e_elastic": self.e_elastic, "max_overlap": self.max_overlap,
             "e_released": self.e_released,
+            "sort_min_mobile": int(self.sort_min_mobile), "sort_every": int(self.sort_every),
             "interactions": self.interactions.to_json_dict(),
         }
         state["meta_json"] = np.array(json.dumps(meta))
@@ -298,6 +315,10 @@ class ParticleSystem:
             setattr(sys_, name, np.array(state[name]))
         for key in ("time", "step_count", "n_rebuilds", "e_elastic", "max_overlap", "e_released"):
             setattr(sys_, key, meta[key])
+        # states written before the spatial order: identity = index, default sorting
+        sys_.ids = np.array(state.get("ids", np.arange(len(sys_.radius))), dtype=np.int64)
+        sys_.sort_min_mobile = int(meta.get("sort_min_mobile", K.SORT_MIN_MOBILE))
+        sys_.sort_every = int(meta.get("sort_every", K.SORT_EVERY))
         sys_._cache_inverse()
         sys_._index_pairs({name: np.array(state["pair_" + name]) for name in cls._PAIR_SAVED})
         return sys_
