@@ -10,7 +10,10 @@ of all runs are bit-for-bit equal (positions, velocities, angular velocities, fo
 tangential springs, pair list, elastic and released energies) and prints a SHA-256 of them.
 
     .venv/bin/python benchmarks/bench_engine_threads.py [--steps 10000] [--repeat 5]
-        [--threads 1 2]
+        [--threads 1 2] [--tiles K]
+
+``--tiles K``: instead, the 10 x 5 dense chute of ``bench_engine_scaling.py`` tiled K x K times
+(K = 3: 9918 particles, 5: 27550), to see how the speed-up grows with N.
 """
 
 from __future__ import annotations
@@ -42,13 +45,18 @@ def state_digest(s) -> tuple[str, dict]:
     return h.hexdigest(), {k: np.array(v, copy=True) for k, v in arrays.items()}
 
 
-def run(state, steps, threads):
+def run(state, steps, threads, tiles=0):
     import numba
 
     numba.set_num_threads(threads)
-    ref = B.paper_species()
-    fb, _ = B.matched_species(ref)
-    s = B.make_system(state, ref, fb)
+    if tiles:
+        import bench_engine_scaling as S
+
+        s = S.tiled_system(state, tiles, tiles)
+    else:
+        ref = B.paper_species()
+        fb, _ = B.matched_species(ref)
+        s = B.make_system(state, ref, fb)
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     c0 = time.process_time()
@@ -66,16 +74,23 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--H", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--tiles", type=int, default=0,
+                    help="the scaling benchmark's 10 x 5 chute tiled K x K (default: the 20 x 10 "
+                         "benchmark chute)")
     args = ap.parse_args(argv)
     import numba
 
     if max(args.threads) > numba.config.NUMBA_NUM_THREADS:
         ap.error(f"--threads {max(args.threads)} > NUMBA_NUM_THREADS = "
                  f"{numba.config.NUMBA_NUM_THREADS}")
+    if args.tiles:
+        import bench_engine_scaling as S
+
+        B.LX, B.LY = S.SMALL_BOX
     state = B.prepare(args.H, args.seed, False, 10.0, 60.0, 1.0)
     for t in args.threads:  # compile / load the cache, warm up
-        run(state, 20, t)
-    print(f"dense chute, N = {len(state['diameter'])}, {args.steps} steps per run, threads "
+        n = run(state, 20, t, args.tiles)["n"]
+    print(f"dense chute, N = {n}, {args.steps} steps per run, threads "
           f"{args.threads} alternating, {args.repeat} rounds; numba threading layer "
           f"{numba.threading_layer()}")
     head = "  ".join(f"{t} thr us/step" for t in args.threads)
@@ -85,7 +100,7 @@ def main(argv=None):
     for r in range(args.repeat):
         row = {}
         for t in args.threads:
-            row[t] = run(state, args.steps, t)
+            row[t] = run(state, args.steps, t, args.tiles)
             results[t].append(row[t])
         base = row[args.threads[0]]["wall"]
         times = "  ".join(f"{row[t]['wall'] / args.steps * 1e6:13.1f}" for t in args.threads)
