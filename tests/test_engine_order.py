@@ -20,6 +20,7 @@ from granflow.coarse.diffusion import TracerObserver
 from granflow.engine import ParticleSystem
 from granflow.engine.lib import kernels as K
 
+from test_engine_threads import _advance as _run
 from test_engine_threads import _packing
 
 
@@ -60,18 +61,6 @@ def _by_id(s):
             "inertia": s.inertia[o], "ptype": s.ptype[o], "fixed": s.fixed[o],
             "wall_hist": s.wall_hist[o],
             "spring_pairs": np.c_[lo, hi][order], "springs": springs[order] + 0.0}
-
-
-def _run(s, steps, threads=1, slots=None):
-    nt = numba.get_num_threads()
-    try:
-        numba.set_num_threads(threads)
-        s._slots_override = slots
-        for n in steps:
-            s.step(n)
-    finally:
-        numba.set_num_threads(nt)
-    return s
 
 
 def test_a_sort_moves_the_state_without_changing_it():

@@ -60,17 +60,22 @@ def _assert_same(a, b):
         assert np.array_equal(a[key], b[key]), key
 
 
-def _run(threads=1, slots=None, skin=0.2, steps=(150, 250)):
+def _advance(s, steps, threads=1, slots=None):
+    """Step ``s`` by each count in ``steps`` on ``threads`` threads (``slots`` runs of pair
+    blocks); the thread count is restored afterwards."""
     nt = numba.get_num_threads()
     try:
         numba.set_num_threads(threads)
-        s = _packing(skin)
         s._slots_override = slots
         for n in steps:
             s.step(n)
     finally:
         numba.set_num_threads(nt)
     return s
+
+
+def _run(threads=1, slots=None, skin=0.2, steps=(150, 250)):
+    return _advance(_packing(skin), steps, threads, slots)
 
 
 def test_same_numbers_for_any_split_of_the_pair_pass():

@@ -55,7 +55,7 @@ class TracerObserver:
         if (self._calls - 1) % self.every:
             return
         # in identity order: the engine may re-sort large systems (ParticleSystem.ids)
-        order = system.id_order() if hasattr(system, "id_order") else np.arange(len(system.fixed))
+        order = system.id_order()
         flow = order[~system.fixed[order]]
         if self.diameter is None:
             self.diameter = 2.0 * system.radius[flow]

@@ -1205,10 +1205,10 @@ def spatial_order(pos, radius, fixed, Lx, Ly):
 
 
 @njit(cache=True)
-def _permute_rows(a, perm, nm):
-    """``a[:nm] = a[perm[:nm]]`` in place (1-D or 2-D rows)."""
-    tmp = a[:nm].copy()
-    for k in range(nm):
+def _permute_rows(a, perm):
+    """``a[:] = a[perm]`` in place (1-D or 2-D rows)."""
+    tmp = a.copy()
+    for k in range(perm.shape[0]):
         a[k] = tmp[perm[k]]
 
 
@@ -1256,15 +1256,14 @@ def sort_particles(pos, vel, omega, vel_p, omega_p, force, torque, radius, inv_m
     order in which later sums visit it changes."""
     n = pos.shape[0]
     perm = spatial_order(pos, radius, fixed, Lx, Ly)
-    nm = n  # every row (fixed particles are ordered among themselves, still last)
     for a in (pos, vel, omega, vel_p, omega_p, force, torque, wall_hist, wall_rows):
-        _permute_rows(a, perm, nm)
+        _permute_rows(a, perm)
     for a in (radius, inv_mass, mass, inv_inertia, inertia, wall_dmax):
-        _permute_rows(a, perm, nm)
-    _permute_rows(ptype, perm, nm)
-    _permute_rows(ids, perm, nm)
-    _permute_rows(level_of, perm, nm)
-    _permute_rows(wall_state, perm, nm)
+        _permute_rows(a, perm)
+    _permute_rows(ptype, perm)
+    _permute_rows(ids, perm)
+    _permute_rows(level_of, perm)
+    _permute_rows(wall_state, perm)
     inv = np.empty(n, dtype=np.int64)
     for k in range(n):
         inv[perm[k]] = k
