@@ -165,6 +165,25 @@ def test_unknown_keys_are_rejected_at_every_level():
     assert any("speciess" in e for e in errors)
 
 
+def test_bisection_replicates_per_height_and_bad_heights():
+    """``replicates: n`` for every height, ``{H: n}`` for the named heights (others 1); a
+    mapping naming a height no chain brackets, or a count of 0, is refused naming the key."""
+    b = {"H": [1.5, 2.0, 8.0], "replicates": {1.5: 3, "2.0": 2}}
+    assert [HS.bisection_replicates(b, H) for H in b["H"]] == [3, 2, 1]
+    assert HS.bisection_replicates({"H": [4.0], "replicates": 4}, 4.0) == 4
+    assert HS.bisection_replicates({"H": [4.0]}, 4.0) == 1
+    cfg = copy.deepcopy(load("config.yaml"))
+    bis = cfg["campaigns"]["chute"]["hstop_bisection"]
+    bis["replicates"] = {float(bis["H"][0]): 3}
+    check_config(cfg, SCHEMA)
+    bis["replicates"] = {99.0: 3}
+    with pytest.raises(ValueError, match=r"hstop_bisection\.replicates names heights \[99\.0\]"):
+        check_config(cfg, SCHEMA)
+    bis["replicates"] = {float(bis["H"][0]): 0}
+    with pytest.raises(ValueError, match="replicates"):
+        check_config(cfg, SCHEMA)
+
+
 def test_box_smaller_than_three_lambda_is_rejected():
     cfg = copy.deepcopy(load("config.yaml"))
     cfg["campaigns"]["chute"]["lambda"] = [2.0]

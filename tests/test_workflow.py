@@ -176,6 +176,27 @@ def test_bisection_chains_all_start_at_once(tmp_path):
         assert f"bisect/H~{H}/rep~0/step~0.json" in out, H
 
 
+def test_bisection_replicates_per_height(tmp_path):
+    """``replicates: {H: n}`` gives only the named heights n chains (seeds seed .. seed + n - 1):
+    three chains at H = 2 and one at H = 3 and 5 -- five first steps, rep~1 and rep~2 at H = 2
+    only."""
+    overlay = tmp_path / "per-height.yaml"
+    overlay.write_text("campaigns:\n  chute:\n    hstop_bisection:\n      H: [2.0, 3.0, 5.0]\n"
+                       "      replicates: {2.0: 3}\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(work), "-n",
+           "--configfile", str(TINY), str(overlay)]
+    proc = _check(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
+    out = proc.stdout + proc.stderr
+    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    assert table.get("hstop_bisect_step") == "5", out[-3000:]
+    assert table.get("hstop_bisect_chain") == "5", out[-3000:]
+    for k in ("0", "1", "2"):
+        assert f"bisect/H~2/rep~{k}/step~0.json" in out, k
+    assert "bisect/H~3/rep~1/" not in out and "bisect/H~5/rep~1/" not in out
+
+
 def test_long_sequential_work_is_scheduled_first(tmp_path):
     """Priorities in the plan of the tiny campaign: segregation runs (slowest sigma first) above
     hstop chain steps above steady runs (thick first) -- longest-processing-time order, so that

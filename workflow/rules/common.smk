@@ -235,9 +235,9 @@ def bisect_chains():
         return []
     laws = CHUTE.get("contact_law") or ["linear"]
     lams = BISECT.get("lambda") or CHUTE.get("lambda") or [1.0]
-    reps = int(BISECT.get("replicates", 1))
     return [(str(law), G.format_value(lam), G.format_value(H), str(k))
-            for law in laws for lam in lams for H in BISECT.get("H") or [] for k in range(reps)]
+            for law in laws for lam in lams for H in BISECT.get("H") or []
+            for k in range(HS.bisection_replicates(BISECT, H))]
 
 
 def bisect_step_input(wildcards):

@@ -187,6 +187,10 @@ def semantic_errors(config: dict) -> list[str]:
         if c.get("engine") == "lammps":
             out += _lammps_errors(kind, c, lams)
         if kind == "chute":
+            b = c.get("hstop_bisection") or {}
+            if b.get("enabled"):
+                from .hstop import bisection_replicate_errors
+                out += bisection_replicate_errors(b)
             s = c.get("hstop_search") or {}
             if s.get("enabled") and s.get("theta_min", 5.0) >= s.get("theta_max", 40.0):
                 out.append("config keys campaigns.chute.hstop_search.theta_min/theta_max: "

@@ -102,6 +102,32 @@ def bisection_guess(cfg: dict, H: float, lam: float | None = None) -> float:
                                  float(prior.get("delta2", 32.780)), float(prior.get("A", 3.355))))
 
 
+def bisection_replicates(cfg: dict, H: float) -> int:
+    """Chains at height H: ``replicates: n`` gives every height n chains (insertion seeds seed ..
+    seed + n - 1); ``replicates: {H: n}`` gives the named heights n chains and the others one
+    (where the seed scatter of one arrest is what limits a fit, e.g. thin layers for delta2)."""
+    reps = cfg.get("replicates", 1)
+    if isinstance(reps, dict):
+        for h, n in reps.items():
+            if abs(float(h) - float(H)) < 1e-9:
+                return int(n)
+        return 1
+    return int(reps)
+
+
+def bisection_replicate_errors(cfg: dict) -> list[str]:
+    """Problems of a per-height ``replicates`` mapping: heights that no chain brackets."""
+    reps = cfg.get("replicates", 1)
+    if not isinstance(reps, dict):
+        return []
+    heights = [float(h) for h in cfg.get("H") or []]
+    bad = [h for h in reps if not any(abs(float(h) - x) < 1e-9 for x in heights)]
+    if not bad:
+        return []
+    return [f"config key campaigns.chute.hstop_bisection.replicates names heights {bad} that are "
+            f"not in campaigns.chute.hstop_bisection.H = {heights}: allowed keys are those heights"]
+
+
 def init_bisection(law: str, lam: float, H: float, cfg: dict, replicate: int = 0) -> dict:
     """Step 0 of the bisection chain of (law, lambda, H, replicate): :class:`Bisection` from
     ``cfg``.  Replicate k brackets the same height with runs of insertion seed + k."""
