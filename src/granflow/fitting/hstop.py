@@ -99,38 +99,52 @@ _FORMS = {"eq45": (EQ45, "hstop", theta_stop_eq45), "eq38": (EQ38, "hstop_eq38",
 
 
 # ---------------------------------------------------------------------------- intervals
-def hstop_intervals_from_runs(theta, H=None, state=None) -> pd.DataFrame:
-    """Bracketing intervals [theta_arrested_max, theta_flowing_min] per height from raw runs.
+def hstop_intervals_from_runs(theta, H=None, state=None, replicate=None) -> pd.DataFrame:
+    """Bracketing intervals [theta_arrested_max, theta_flowing_min] per height (and replicate)
+    from raw runs.
 
-    Accepts arrays ``theta, H, state`` or a single DataFrame (campaign table or any frame with
-    columns theta, H, state) as first argument. 'arrested' runs are arrested; steady, accelerating,
-    layered, oscillating and undecided runs count as flowing (:data:`FLOWING_STATES`). A height with only arrested (only flowing)
-    runs gets ``theta_flowing_min = +inf`` (``theta_arrested_max = -inf``): a one-sided interval.
-    If the largest arrested angle exceeds the smallest flowing one (non-monotone outcome), the two
-    are swapped so the interval still brackets the demarcation; ``n_inverted`` counts them.
+    Accepts arrays ``theta, H, state`` (and optionally ``replicate``) or a single DataFrame
+    (campaign table or any frame with columns theta, H, state and optionally replicate) as
+    first argument. 'arrested' runs are arrested; steady, accelerating, layered, oscillating and
+    undecided runs count as flowing (:data:`FLOWING_STATES`). A height with only arrested (only
+    flowing) runs gets ``theta_flowing_min = +inf`` (``theta_arrested_max = -inf``): a one-sided
+    interval. If the largest arrested angle exceeds the smallest flowing one (non-monotone
+    outcome), the two are swapped so the interval still brackets the demarcation; ``n_inverted``
+    counts them.
+
+    Replicates (insertion seed + k, column ``replicate``) bracket their own arrest: each
+    (H, replicate) gets its own interval, so that k chains at one height are k data for the fit
+    and its bootstrap, and their scatter enters the fit's error, instead of one interval widened
+    by the seed scatter (pooling the seeds' runs inverts the bracket as soon as one seed arrests
+    above another's flowing angle).  Runs without a replicate index count as replicate 0.
     """
     if isinstance(theta, pd.DataFrame):
         frame = theta
         theta, H, state = frame["theta"].to_numpy(float), frame["H"].to_numpy(float), frame["state"].to_numpy()
+        if "replicate" in frame.columns:
+            replicate = frame["replicate"].to_numpy(float)
     theta = np.asarray(theta, dtype=float)
     H = np.asarray(H, dtype=float)
     state = np.asarray(state).astype(str)
+    rep = (np.zeros(theta.shape) if replicate is None
+           else np.nan_to_num(np.asarray(replicate, dtype=float), nan=0.0))
     unknown = set(state) - set(FLOWING_STATES) - {"arrested"}
     if unknown:
         raise ValueError(f"unknown flow state(s) {sorted(unknown)}")
     rows = []
     for h in np.unique(H[np.isfinite(H)]):
-        sel = H == h
-        arrested = theta[sel & (state == "arrested")]
-        flowing = theta[sel & (state != "arrested")]
-        lo = float(arrested.max()) if arrested.size else -math.inf
-        hi = float(flowing.min()) if flowing.size else math.inf
-        inverted = lo > hi
-        if inverted:
-            lo, hi = hi, lo
-        rows.append({"H": float(h), "theta_arrested_max": lo, "theta_flowing_min": hi,
-                     "inverted": bool(inverted)})
-    return pd.DataFrame(rows, columns=list(INTERVAL_COLUMNS) + ["inverted"])
+        for k in np.unique(rep[H == h]):
+            sel = (H == h) & (rep == k)
+            arrested = theta[sel & (state == "arrested")]
+            flowing = theta[sel & (state != "arrested")]
+            lo = float(arrested.max()) if arrested.size else -math.inf
+            hi = float(flowing.min()) if flowing.size else math.inf
+            inverted = lo > hi
+            if inverted:
+                lo, hi = hi, lo
+            rows.append({"H": float(h), "theta_arrested_max": lo, "theta_flowing_min": hi,
+                         "inverted": bool(inverted), "replicate": int(k)})
+    return pd.DataFrame(rows, columns=list(INTERVAL_COLUMNS) + ["inverted", "replicate"])
 
 
 def _as_intervals(intervals, runs):
@@ -146,10 +160,12 @@ def _as_intervals(intervals, runs):
     H = intervals["H"].to_numpy(float)
     lo = intervals["theta_arrested_max"].to_numpy(float)
     hi = intervals["theta_flowing_min"].to_numpy(float)
+    rep = (intervals["replicate"].fillna(0).to_numpy(int) if "replicate" in intervals.columns
+           else np.zeros(H.shape, int))
     keep = np.isfinite(H) & (H > 0) & ~(np.isnan(lo) & np.isnan(hi))
     lo = np.where(np.isnan(lo), -np.inf, lo)
     hi = np.where(np.isnan(hi), np.inf, hi)
-    return H[keep], lo[keep], hi[keep]
+    return H[keep], lo[keep], hi[keep], rep[keep]
 
 
 # ---------------------------------------------------------------------------- fitting
@@ -209,7 +225,7 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
     equation, kind, theta_stop = _FORMS[form]
     coords = dict(lam=lam, contact_law=contact_law)
     try:
-        H, lo, hi = _as_intervals(intervals, runs)
+        H, lo, hi, rep = _as_intervals(intervals, runs)
     except ValueError as exc:
         return failed_fit(kind, equation, HSTOP_PARAMS, str(exc), 0, "bootstrap", **coords)
     two_sided = np.isfinite(lo) & np.isfinite(hi)
@@ -263,7 +279,8 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
         coords={k: v for k, v in coords.items() if v is not None},
         extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break,
                "at_bound": at_b,
-               "intervals": {"H": H.tolist(), "lo": lo.tolist(), "hi": hi.tolist()}},
+               "intervals": {"H": H.tolist(), "lo": lo.tolist(), "hi": hi.tolist(),
+                             "replicate": rep.tolist()}},
         ensemble=tuple(tuple(map(float, row)) for row in boot),
     )
 
@@ -271,21 +288,27 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
 def _heldout(result: FitResult, theta_stop, tie_break, d) -> FitResult:
     """Leave-one-out z-scores of the two-sided brackets: each bracket is left out, the curve is
     refitted to the others and its theta_stop(H) compared with the bracket's midpoint, with the
-    bracket's own uncertainty (uniform: width / sqrt 12) and the curve's (bootstrap ensemble of
-    the full fit at that H): z = (theta_pred - mid) / sqrt(var_pred + width^2 / 12)."""
+    bracket's own uncertainty (uniform: width / sqrt 12), the curve's (bootstrap ensemble of
+    the full fit at that H) and the scatter of the arrest angle itself (tau, as for the other
+    closures, :mod:`granflow.fitting.identify`: estimated without bracket i from the other
+    brackets' residuals about the refitted curve, tau^2 = max(0, (sum r_j^2 - sum w_j^2/12) /
+    (n - 1 - 3)); one arrest scatters between insertion seeds by about a 0.25 deg bracket's
+    width, which replicate chains show and a bracket's width does not):
+    z = (theta_pred - mid) / sqrt(var_pred + width^2 / 12 + tau^2)."""
     from .identify import apply_heldout
 
     iv = result.extra.get("intervals")
     if result.status == "failed" or not iv:
         return result
     H, lo, hi = (np.asarray(iv[k], dtype=float) for k in ("H", "lo", "hi"))
+    rep = np.asarray(iv.get("replicate") or np.zeros(H.size), dtype=int)
     two = np.isfinite(lo) & np.isfinite(hi)
     ens = result.ensemble_array()
     z = {}
     for i in np.nonzero(two)[0]:
         keep = np.ones(H.size, bool)
         keep[i] = False
-        key = f"H={H[i]:g}"
+        key = f"H={H[i]:g}" + (f" seed~{rep[i]}" if rep[i] else "")
         if int((two & keep).sum()) < 3:
             z[key] = math.nan
             continue
@@ -296,10 +319,16 @@ def _heldout(result: FitResult, theta_stop, tie_break, d) -> FitResult:
             z[key] = math.nan
             continue
         pred = float(theta_stop(H[i], sol.x[0], sol.x[0] + sol.x[1], sol.x[2], d))
-        var = 0.0
+        others = two & keep
+        mids = 0.5 * (lo[others] + hi[others])
+        res = theta_stop(H[others], sol.x[0], sol.x[0] + sol.x[1], sol.x[2], d) - mids
+        dof = int(others.sum()) - len(HSTOP_PARAMS)
+        tau2 = (max(0.0, float(np.sum(res ** 2) - np.sum((hi[others] - lo[others]) ** 2) / 12.0))
+                / dof if dof > 0 else 0.0)
+        var = tau2
         if len(ens) >= 10:
             th = np.array([theta_stop(H[i], e[0], e[1], e[2], d) for e in ens])
-            var = float(np.nanvar(th, ddof=1))
+            var += float(np.nanvar(th, ddof=1))
         mid, w = 0.5 * (lo[i] + hi[i]), hi[i] - lo[i]
         z[key] = float((pred - mid) / math.sqrt(var + w * w / 12.0)) if var + w * w > 0 else math.nan
     return apply_heldout(result, z)
