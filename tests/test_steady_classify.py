@@ -108,6 +108,35 @@ def test_rocking_rattler_on_a_stopped_pile_is_arrested():
     assert classify_flow(T, level * noise(1), u_sg * noise(2)).state == "oscillating"
 
 
+def test_rocking_grain_in_a_stopped_thick_layer_is_arrested_not_oscillating():
+    """A real run (reference lambda = 1, paper species t_c = 0.005, H = 16, 20.58 deg; series
+    binned to 0.5 time units up to t = 400): the layer stops by t ~ 100 (|u_bar| <= 2e-5 from
+    then on) while one loose grain swings E_kin/<E_ela> between ~1e-3 and 5.5e-2 for ever.  Run to
+    t = 2000 it was called oscillating (68 'stop-and-go cycles'), i.e. flowing, and bracketed
+    hstop(16) below hstop(24).  It must be arrested as soon as 100 time units without mean motion
+    have passed, and not before (t = 150: only 50 of them)."""
+    from pathlib import Path
+
+    from granflow.steady.classify import ARREST_HOLD_ROCKING, ARREST_VELOCITY
+
+    d = np.load(Path(__file__).parent / "data" / "rocking_arrest_H16_20.58deg.npz")
+    t, r, u = (d[k].astype(float) for k in ("time", "ratio", "u_bar"))
+    late = t > 100.0
+    assert np.abs(u[late]).max() < 0.05 * ARREST_VELOCITY  # the mean flow has stopped ...
+    assert r[late].max() / r[late].min() > 10.0  # ... but the ratio swings by over a decade
+    for t_end, state in ((150.0, "undecided"), (210.0, "arrested"), (400.0, "arrested")):
+        k = t <= t_end
+        c = classify_flow(t[k], r[k], u[k])
+        assert c.state == state, (t_end, c.explain())
+    assert c.statistics["arrest_u_max"] < ARREST_VELOCITY
+    assert classify_flow(t, r).state != "arrested"  # without u_bar the paper's rule never fires
+    # a stop-and-go flow whose stops (u_bar 5e-4) are shorter than the hold stays oscillating
+    half = 0.5 * ARREST_HOLD_ROCKING
+    level = np.where((T // half) % 2 == 0, 1e-1, 1e-3)
+    u_sg = np.where((T // half) % 2 == 0, 1.0, 5e-4)
+    assert classify_flow(T, level * noise(3), u_sg * noise(4)).state == "oscillating"
+
+
 def test_single_dip_is_not_oscillating():
     r = 0.1 * noise(0, amp=0.05)
     r[100:200] *= 1e-2  # one stop and restart, e.g. compaction then spin-up

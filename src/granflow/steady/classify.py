@@ -4,7 +4,8 @@ The paper classifies each run from the energy ratio E_kin/<E_ela> (kinetic energ
 time-averaged elastic energy, §6, Fig. 3) and, for smooth bases (§8, Fig. 10), from the density
 profile:
 
-* **arrested** -- the ratio falls below 1e-5 (§6, the rule of the hstop search);
+* **arrested** -- the ratio falls below 1e-5 (§6, the rule of the hstop search), or the mean
+  velocity has stopped while a few loose grains keep rocking (rules 1b, 1c below);
 * **steady** -- the ratio becomes time independent (§6: "constant within t in [1800, 2000]");
 * **accelerating** -- the ratio keeps increasing (§6, theta >= 30 deg for lambda = 1);
 * **oscillating** -- stop-and-go flow with "large oscillations in the ratio" due to spontaneous
@@ -93,6 +94,20 @@ ARREST_VELOCITY = 1e-3
 ARREST_RATIO_RATTLERS = 1e-3
 #: ... over this long (four times ARREST_HOLD_TIME: the rule is looser, so it must hold longer).
 ARREST_HOLD_RATTLERS = 20.0
+
+#: Rocking-tolerant arrest, the looser form: the depth-mean velocity below ARREST_VELOCITY over
+#: the last ARREST_HOLD_ROCKING time units, with the ratio below ARREST_RATIO_ROCKING.  With the
+#: paper's species (t_c = 0.005, stiffer, so less elastic energy per load) one loose grain in an
+#: arrested H = 16 layer at 20.58 deg kept E_kin/<E_ela> swinging between 8e-4 and 5.5e-2 (a
+#: regular cycle) from t = 100 to the cap t = 2000 while |u_bar| <= 2e-5: the "stop-and-go"
+#: rule counted 68 cycles and called it oscillating, i.e. flowing, and the H = 16 bracket came out
+#: 20.33-20.58 deg, below the H = 24 one (20.50-20.75) -- an inverted hstop (reference run of
+#: 2026-11-26).  A stop-and-go flow flows in its "go" phases (u_bar ~ 0.05 ... 1); 100 time units
+#: (20 000 collision times) without any mean motion is an arrest.
+ARREST_HOLD_ROCKING = 100.0
+#: ... with the ratio at most this (flowing layers near hstop: 10 ... 100; one decade margin
+#: below the 1e-1 ... 10 of a slow flow).
+ARREST_RATIO_ROCKING = 1.0
 
 # --- trends ----------------------------------------------------------------------------------
 #: Significance level of every trend test.  The monitor re-tests every check interval, so a
@@ -370,7 +385,10 @@ def classify_flow(
     1. arrested: the ratio has been above ``arrest_ratio`` and is below it over the last
        ``arrest_hold`` time units (paper §6); or (u_bar given) the mean velocity is below
        :data:`ARREST_VELOCITY` and the ratio below :data:`ARREST_RATIO_RATTLERS` over the last
-       :data:`ARREST_HOLD_RATTLERS` (a few rocking grains keep the ratio above 1e-5);
+       :data:`ARREST_HOLD_RATTLERS` (a few rocking grains keep the ratio above 1e-5); or
+       (u_bar given) the mean velocity is below :data:`ARREST_VELOCITY` over the last
+       :data:`ARREST_HOLD_ROCKING` with the ratio below :data:`ARREST_RATIO_ROCKING` (loose
+       grains swing the ratio by decades, but the mean flow never restarts);
     2. oscillating: at least ``min_oscillation_cycles`` complete stop-and-go cycles
        (:func:`oscillation_cycles`);
     3. accelerating: over the recent window, the tail after t0 or the last half of the run
@@ -451,6 +469,26 @@ def classify_flow(
                 f"mean velocity |u_bar| <= {umax:.2g} < {ARREST_VELOCITY:g} and ratio < "
                 f"{ARREST_RATIO_RATTLERS:g} over the last {ARREST_HOLD_RATTLERS:g} time units "
                 f"(rattlers keep the ratio above {arrest_ratio:g})")
+
+    # 1c. arrested, rocking: no mean motion for ARREST_HOLD_ROCKING, loose grains still swing
+    #     the ratio by decades (which the stop-and-go rule below would count as cycles)
+    if u is not None and t[-1] - t[0] > ARREST_HOLD_ROCKING:
+        hold_k = t >= t[-1] - ARREST_HOLD_ROCKING
+        with np.errstate(invalid="ignore"):
+            still = bool(np.all(np.abs(u[hold_k]) < ARREST_VELOCITY)
+                         and np.all(r[hold_k] < ARREST_RATIO_ROCKING))
+            moved = bool(np.any(np.abs(u[~hold_k]) >= ARREST_VELOCITY))
+        if still and moved:
+            umax = float(np.nanmax(np.abs(u[hold_k])))
+            rmax = float(np.nanmax(r[hold_k]))
+            stats_["arrest_u_max"] = umax
+            stats_["arrest_ratio_max"] = rmax
+            return FlowClassification(
+                "arrested", None, 1.0, stats_,
+                f"mean velocity |u_bar| <= {umax:.2g} < {ARREST_VELOCITY:g} over the last "
+                f"{ARREST_HOLD_ROCKING:g} time units while loose grains swing the ratio up to "
+                f"{rmax:.2g} (< {ARREST_RATIO_ROCKING:g}): no stop-and-go, the mean flow never "
+                f"restarts")
 
     # 2. oscillating (§8: stop-and-go)
     osc = oscillation_cycles(r)
