@@ -85,3 +85,45 @@ def test_campaign_cost_counts_spare_core_threads(tmp_path):
     (row,) = cc.run_costs(tmp_path)
     assert row[4] == pytest.approx(90.0) and row[5] == pytest.approx(140.0)
     assert row[6] == pytest.approx(50.0)
+
+
+def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_path):
+    """Synthetic bracket runs around Table 1's hstop(theta) (lambda = 1), three insertion seeds
+    at each of seven heights, arrests scattered by 0.2 deg: 21 brackets, a fit that agrees with
+    Table 1 by paper_table's rule; a second results folder's run replaces the first's."""
+    import json
+
+    import numpy as np
+
+    from granflow.fitting.hstop import theta_stop_eq45
+
+    hb = _load("hstop_brackets")
+    rng = np.random.default_rng(3)
+    root, rerun = tmp_path / "a", tmp_path / "b"
+
+    def write(base, theta, H, k, state):
+        d = base / "bracket" / "linear" / "lambda~1" / f"theta~{theta:.2f}" / f"H~{H:g}"
+        d = d / f"seed~{k}" if k else d
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "summary.json").write_text(json.dumps({"flow_state": state}))
+
+    heights = (1.5, 2.0, 3.0, 4.0, 6.0, 12.0, 24.0)
+    for H in heights:
+        for k in range(3):
+            arrest = float(theta_stop_eq45(H, 17.708, 32.780, 3.355)) + rng.normal(0.0, 0.2)
+            write(root, arrest - 0.1, H, k, "arrested")
+            write(root, arrest + 0.15, H, k, "oscillating" if H == 24.0 and k == 0 else "steady")
+    runs = hb.bracket_runs(root)
+    assert len(runs) == 2 * 3 * len(heights)
+    iv, fit, rows = hb.hstop_table(runs)
+    assert len(iv) == 3 * len(heights) and not iv["inverted"].any()
+    assert fit.status == "ok"
+    assert [r["parameter"] for r in rows] == ["delta1", "delta2", "A"]
+    assert all(r["agrees"] for r in rows), rows
+    # a rerun that finds the H = 24, seed 0 "oscillating" run arrested moves that bracket up
+    flowing = runs[(runs.H == 24.0) & (runs.replicate == 0) & (runs.state == "oscillating")]
+    write(rerun, float(flowing.theta.iloc[0]), 24.0, 0, "arrested")
+    iv2 = hb.hstop_table(hb.bracket_runs(root, rerun))[0]
+    row = iv2[(iv2.H == 24.0) & (iv2.replicate == 0)].iloc[0]
+    assert row["theta_arrested_max"] == pytest.approx(float(flowing.theta.iloc[0]))
+    assert math.isinf(row["theta_flowing_min"])

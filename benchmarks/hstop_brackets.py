@@ -1,0 +1,82 @@
+"""hstop(theta) of Eq. (45) from a campaign's finished bracket and chute runs, against Table 1.
+
+Reads every ``summary.json`` under ``<results>/bracket`` and ``<results>/chute`` (also of a
+campaign whose steady runs are still going: the bisection chains finish first), forms one
+arrested/flowing bracket per (H, replicate) as the library's fit does
+(:func:`granflow.fitting.hstop.hstop_intervals_from_runs`), fits Eq. (45) with the library's
+settings (200 bootstrap refits, seed 1) and prints the brackets and the fit against Table 1
+(lambda = 1) with the rule of ``paper_table.py`` (2 stderr or 5 %, identified only).  Later
+results folders override earlier ones run by run (a chain rerun elsewhere replaces the
+original's runs at the same angle and height).
+
+    .venv/bin/python benchmarks/hstop_brackets.py results/reference-lambda1
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import re
+from pathlib import Path
+
+import pandas as pd
+
+from granflow.fitting.hstop import fit_hstop, hstop_intervals_from_runs
+
+POINT = re.compile(r"theta~([0-9.]+)/H~([0-9.]+)(?:/seed~(\d+))?/summary\.json$")
+
+
+def bracket_runs(*roots) -> pd.DataFrame:
+    """theta, H, state, replicate of the bracket and chute runs under the results folders."""
+    runs: dict[str, dict] = {}
+    for root in map(Path, roots):
+        for kind in ("bracket", "chute"):
+            for f in sorted((root / kind).glob("**/summary.json")):
+                m = POINT.search(f.as_posix())
+                if not m:
+                    continue
+                state = json.loads(f.read_text())["flow_state"]
+                runs[f.relative_to(root).as_posix()] = {
+                    "theta": float(m.group(1)), "H": float(m.group(2)), "state": state,
+                    "replicate": int(m.group(3) or 0)}
+    return pd.DataFrame(list(runs.values()), columns=["theta", "H", "state", "replicate"])
+
+
+def _paper_rows():
+    spec = importlib.util.spec_from_file_location("paper_table",
+                                                  Path(__file__).with_name("paper_table.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.paper_rows
+
+
+def hstop_table(runs: pd.DataFrame, lam: float = 1.0):
+    """(brackets, fit, rows against Table 1) of the runs."""
+    iv = hstop_intervals_from_runs(runs)
+    fit = fit_hstop(iv, n_bootstrap=200, seed=1)
+    table = pd.DataFrame([{"kind": "hstop", "lambda": lam, "parameter": p, "value": v,
+                           "stderr": fit.stderr.get(p, math.nan),
+                           "parameter_status": fit.param_status.get(p, "not_fitted"),
+                           "message": fit.message} for p, v in fit.params.items()])
+    return iv, fit, _paper_rows()(table)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("results", type=Path, nargs="+")
+    args = ap.parse_args()
+    iv, fit, rows = hstop_table(bracket_runs(*args.results))
+    print(iv.sort_values(["H", "replicate"]).to_string(index=False))
+    print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
+          f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
+    print("| parameter | value +- stderr | paper | z | status | agrees |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['parameter']} | {r['value']:.4g} +- {r['stderr']:.2g} | {r['paper']:g} | "
+              f"{r['z']:+.1f} | {r['status']} | {'yes' if r['agrees'] else 'no'} |")
+
+
+if __name__ == "__main__":
+    main()
