@@ -156,20 +156,26 @@ def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
     assert not (tmp_path / "results").exists()
 
 
-def test_bisection_chains_all_start_at_once(tmp_path):
-    """Three hstop bisection chains (H = 2, 3, 5) are all in the plan from the start: three
-    first steps and three chain files, so that the chains run side by side (before the
-    per-chain rule, the collect rule's walk over the chains held each chain back until the
-    previous one was finished: one chain at a time on any number of cores)."""
-    overlay = tmp_path / "three-chains.yaml"
-    overlay.write_text("campaigns:\n  chute:\n    hstop_bisection:\n      H: [2.0, 3.0, 5.0]\n")
+def _bisection_plan(tmp_path, bisection_yaml):
+    """Dry-run plan of the tiny campaign with ``hstop_bisection`` keys overlaid: (output, job
+    counts by rule)."""
+    overlay = tmp_path / "bisection.yaml"
+    overlay.write_text("campaigns:\n  chute:\n    hstop_bisection:\n      " + bisection_yaml)
     work = tmp_path / "work"
     work.mkdir()
     cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(work), "-n",
            "--configfile", str(TINY), str(overlay)]
     proc = _check(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
     out = proc.stdout + proc.stderr
-    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    return out, dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+
+
+def test_bisection_chains_all_start_at_once(tmp_path):
+    """Three hstop bisection chains (H = 2, 3, 5) are all in the plan from the start: three
+    first steps and three chain files, so that the chains run side by side (before the
+    per-chain rule, the collect rule's walk over the chains held each chain back until the
+    previous one was finished: one chain at a time on any number of cores)."""
+    out, table = _bisection_plan(tmp_path, "H: [2.0, 3.0, 5.0]\n")
     assert table.get("hstop_bisect_step") == "3", out[-3000:]
     assert table.get("hstop_bisect_chain") == "3", out[-3000:]
     for H in ("2", "3", "5"):
@@ -180,16 +186,7 @@ def test_bisection_replicates_per_height(tmp_path):
     """``replicates: {H: n}`` gives only the named heights n chains (seeds seed .. seed + n - 1):
     three chains at H = 2 and one at H = 3 and 5 -- five first steps, rep~1 and rep~2 at H = 2
     only."""
-    overlay = tmp_path / "per-height.yaml"
-    overlay.write_text("campaigns:\n  chute:\n    hstop_bisection:\n      H: [2.0, 3.0, 5.0]\n"
-                       "      replicates: {2.0: 3}\n")
-    work = tmp_path / "work"
-    work.mkdir()
-    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(work), "-n",
-           "--configfile", str(TINY), str(overlay)]
-    proc = _check(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
-    out = proc.stdout + proc.stderr
-    table = dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
+    out, table = _bisection_plan(tmp_path, "H: [2.0, 3.0, 5.0]\n      replicates: {2.0: 3}\n")
     assert table.get("hstop_bisect_step") == "5", out[-3000:]
     assert table.get("hstop_bisect_chain") == "5", out[-3000:]
     for k in ("0", "1", "2"):
