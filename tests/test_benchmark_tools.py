@@ -72,6 +72,25 @@ def test_campaign_cost_sums_the_runs_last_log_lines(tmp_path):
     assert {r[1] for r in rows} == {"10", "2"} and all(r[3] in (500, 100) for r in rows)
 
 
+def test_campaign_cost_takes_cpu_time_of_all_segments_where_the_log_has_it(tmp_path):
+    """A log with the whole run's cost counts its CPU seconds (not the segment's wall time,
+    which other jobs on the same cores inflate); an old log falls back to wall x threads."""
+    cc = _load("campaign_cost")
+    new = tmp_path / "chute/linear/lambda~1/theta~24/H~30"
+    old = tmp_path / "chute/linear/lambda~1/theta~25/H~30"
+    for p in (new, old):
+        p.mkdir(parents=True)
+    (new / "simulate.log").write_text(
+        f"{new}: steady (...) at t = 900 (1500 flow particles, 1200.0 s wall; whole run "
+        "1500.5 s cpu, 2000.0 s wall, 2 segments)\n")
+    (old / "simulate.log").write_text(
+        f"{old}: steady (...) at t = 800 (1500 flow particles, 700.0 s wall)\n")
+    rows = {r[2]: r for r in cc.run_costs(tmp_path)}
+    assert rows[900.0][5] == pytest.approx(1500.5) and rows[900.0][4] == pytest.approx(2000.0)
+    assert rows[900.0][7] is True and rows[900.0][8] == 2
+    assert rows[800.0][5] == pytest.approx(700.0) and rows[800.0][7] is False
+
+
 def test_campaign_cost_counts_spare_core_threads(tmp_path):
     """A run that took a spare core (granflow.engine.threads) costs its thread seconds: 30 s
     on one thread and 50 s on two of its 90 s wall are 90 + 50 = 140 thread seconds."""

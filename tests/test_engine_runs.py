@@ -105,6 +105,25 @@ def test_killed_run_resumes_to_identical_numbers(small_job):
         for name in ("density", "velocity_x", "stress_zz", "stress_xz"):
             assert np.array_equal(pa[name].values, pb[name].values, equal_nan=True), name
     assert not (killed / "checkpoint.npz").exists()
+    # the run's cost counts both segments (the checkpoint carried the first's), in the form
+    # benchmarks/campaign_cost.py reads; the uninterrupted run is one segment
+    last = _cost_line(res.stdout)
+    assert last["segments"] == 2 and last["cpu_s"] > 0
+    assert last["wall_s"] > last["segment_wall_s"]
+    assert _cost_line(_run_cli(pfile, tmp / "ref2", base).stdout)["segments"] == 1
+
+
+def _cost_line(stdout: str) -> dict:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "campaign_cost", Path(__file__).resolve().parents[1] / "benchmarks" / "campaign_cost.py")
+    cc = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cc)
+    m = cc.LAST.search(stdout.strip().splitlines()[-1])
+    assert m is not None and m.group(4) is not None, stdout
+    return {"segment_wall_s": float(m.group(3)), "cpu_s": float(m.group(4)),
+            "wall_s": float(m.group(5)), "segments": int(m.group(6))}
 
 
 def test_same_seed_same_numbers_and_provenance(small_job):

@@ -187,8 +187,11 @@ def cmd_simulate(args):
                            core_lease=args.core_lease)
     finally:
         remove_pid_file()
+    cost = summary["cost"]
+    # benchmarks/campaign_cost.py reads this line: keep its form
     print(f"{args.out}: {summary['flow_state']} ({summary['stop_reason']}) at t = {summary['t_final']:.4g} "
-          f"({summary['n_flow']} flow particles, {summary['wall_s']:.1f} s wall)")
+          f"({summary['n_flow']} flow particles, {summary['wall_s']:.1f} s wall; whole run "
+          f"{cost['cpu_s']:.1f} s cpu, {cost['wall_s']:.1f} s wall, {cost['segments']} segments)")
 
 
 def cmd_prepare_base(args):

@@ -39,7 +39,7 @@ import numpy as np
 from . import cfconventions
 from . import units as U
 from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_base
-from .engine.run import ChuteRun
+from .engine.run import ChuteRun, cpu_seconds
 from .engine.system import ParticleSystem
 from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
 from .provenance import (atomic_to_netcdf, atomic_write_bytes, provenance_attrs,
@@ -603,7 +603,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
 
         spare = from_environment(threads, max_threads, core_lease)  # checks its bounds
     ckpt = out_dir / "checkpoint.npz"
-    wall0 = _time.monotonic()
+    wall0, cpu0 = _time.monotonic(), cpu_seconds()
     parent = {}
     if from_state is not None:  # checked before any compute, also when resuming
         if engine != "numba":
@@ -640,6 +640,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     else:
         run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
                        checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
+    run.segment_start = (wall0, cpu0)  # the set-up above counts in the run's cost
     if spare is not None:
         # a borrowed thread stays only if the run's steps per second show it pays
         spare.progress = lambda: run.system.step_count
@@ -693,7 +694,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                         parent=parent)
     if ckpt.exists():
         ckpt.unlink()
-    return dict(out, wall_s=_time.monotonic() - wall0, run=run)
+    # wall_s: this process; cost: the whole run (all segments of a resumed run, CPU of all threads)
+    return dict(out, wall_s=_time.monotonic() - wall0, cost=run.cost(), run=run)
 
 
 def lammps_attrs(lammps) -> dict:

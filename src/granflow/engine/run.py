@@ -10,6 +10,11 @@ stop early.
 Checkpoints hold the complete state (particles, neighbour list, contact history, time series,
 observer states) and are written atomically, so a run killed at any moment resumes from the
 last checkpoint and finishes with exactly the numbers of an uninterrupted run.
+
+A run also counts what it cost (:meth:`ChuteRun.cost`): wall-clock and CPU seconds of the
+process (CPU time of all its threads: core seconds that do not grow when other jobs share the
+cores), summed over the segments of a run that was killed and resumed (the checkpoint carries
+the totals up to its writing; the work after the last checkpoint is redone and counted once).
 """
 
 from __future__ import annotations
@@ -29,6 +34,13 @@ from .system import ParticleSystem
 log = logging.getLogger(__name__)
 
 SERIES = ("time", "e_kin", "e_ela", "e_grav", "u_mean")
+
+
+def cpu_seconds() -> float:
+    """CPU seconds of this process, all threads, and of its finished child processes (the
+    LAMMPS ranks of a run on the second engine, counted once they have been waited for)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 class EnergySeries:
@@ -110,6 +122,10 @@ class ChuteRun:
         self.tick_hooks = []
         self.stop_reason = "t_end reached"
         self.resumed_from = None
+        # cost of the earlier segments (restored from a checkpoint) and the start of this one;
+        # the caller may move the start back to include its set-up (granflow.simulate does)
+        self.cost_before = {"wall_s": 0.0, "cpu_s": 0.0, "segments": 0}
+        self.segment_start = (_time.monotonic(), cpu_seconds())
 
     # ------------------------------------------------------------------ checkpoint
     def save_checkpoint(self):
@@ -117,7 +133,19 @@ class ChuteRun:
             return
         extra = _flatten_observer_states(self.observers)
         extra["stop_reason"] = np.array(self.stop_reason)
+        cost = self.cost()
+        extra["cost_wall_s"] = np.array(cost["wall_s"])
+        extra["cost_cpu_s"] = np.array(cost["cpu_s"])
+        extra["cost_segments"] = np.array(cost["segments"])
         self.system.save(self.checkpoint, extra=extra)
+
+    def cost(self) -> dict:
+        """Wall and CPU seconds of the run so far, all segments (``segments``: processes)."""
+        wall0, cpu0 = self.segment_start
+        before = self.cost_before
+        return {"wall_s": before["wall_s"] + _time.monotonic() - wall0,
+                "cpu_s": before["cpu_s"] + cpu_seconds() - cpu0,
+                "segments": int(before["segments"]) + 1}
 
     def try_resume(self) -> bool:
         """Load the checkpoint if there is one; returns True when resumed."""
@@ -126,6 +154,10 @@ class ChuteRun:
         system, extra = ParticleSystem.load(self.checkpoint)
         self.system = system
         _restore_observer_states(self.observers, extra)
+        if "cost_wall_s" in extra:  # checkpoints written before the cost was kept have none
+            self.cost_before = {"wall_s": float(extra["cost_wall_s"]),
+                                "cpu_s": float(extra["cost_cpu_s"]),
+                                "segments": int(extra["cost_segments"])}
         self.resumed_from = float(system.time)
         log.info("resumed from checkpoint %s at t = %.4g", self.checkpoint, system.time)
         return True
