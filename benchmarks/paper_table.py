@@ -6,6 +6,9 @@ by the reference campaigns' rule (issue 14): within twice its own stderr, or wit
 paper's value where that is the looser (a density reduced to its linear form is compared
 with Eq. 52's value and slope at the fit's reference angle).  The parameter's identifiability status is the
 library's own; a parameter that is not identified is listed but never counts as agreeing.
+A second table sets each closure's fit error (Eq. 49 of its residuals) against the paper's
+(Table 1's err(F), Table 2's error of alpha): a misfit the size of the paper's is the closure
+form's own scatter, not a defect of the campaign.
 
     .venv/bin/python benchmarks/paper_table.py results/reference-lambda1
 """
@@ -19,7 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from granflow.reference import paper_value
+from granflow.reference import paper_fit_error, paper_value
 
 #: closure kinds whose parameters the papers give (hstop_eq38 has no paper value)
 KINDS = ("hstop", "flow_rule", "alpha", "density", "stress_ratio", "Ps_law")
@@ -51,6 +54,23 @@ def paper_rows(table: pd.DataFrame, n_sigma: float = 2.0, rel: float = 0.05) -> 
     return rows
 
 
+def fit_error_rows(table: pd.DataFrame) -> list[dict]:
+    """One row per closure (kind, lambda) the paper gives a fit error for: ours and the paper's
+    Eq. (49) error, their ratio, the runs used and the closure's status."""
+    rows = []
+    t = table.rename(columns={"lambda": "lam"})
+    for (kind, lam), g in t.groupby(["kind", "lam"], dropna=True, sort=True):
+        ref = paper_fit_error(kind, lam)
+        if not math.isfinite(ref):
+            continue
+        r = g.iloc[0]
+        ours = float(r.fit_error)
+        rows.append({"closure": kind, "lambda": float(lam), "fit_error": ours, "paper": ref,
+                     "ratio": ours / ref if math.isfinite(ours) else math.nan,
+                     "n_points": int(r.n_points), "status": r.status})
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", type=Path)
@@ -66,6 +86,13 @@ def main():
               f"{r['status']} | {'yes' if r['agrees'] else 'no'} |")
     n_ok = sum(r["agrees"] for r in rows)
     print(f"\n{n_ok} of {len(rows)} paper parameters agree (2 stderr or 5 %, identified only)")
+    errs = fit_error_rows(table)
+    if errs:
+        print("\n| closure | lambda | fit error (Eq. 49) | paper | ratio | runs | status |")
+        print("|---|---|---|---|---|---|---|")
+        for r in errs:
+            print(f"| {r['closure']} | {r['lambda']:g} | {r['fit_error']:.4g} | {r['paper']:g} | "
+                  f"{r['ratio']:.2f} | {r['n_points']} | {r['status']} |")
 
 
 if __name__ == "__main__":

@@ -53,6 +53,30 @@ def test_paper_table_applies_the_two_stderr_or_five_percent_rule():
         0.5985 - math.exp((26.4 - 40.85) / 4.8), rel=1e-12)
 
 
+def test_paper_table_sets_fit_errors_against_table_1_and_2():
+    """err(F) of Table 1 and alpha's error of Table 2 per lambda; closures without a paper
+    error (density) and lambdas the paper does not list are left out."""
+    pt = _load("paper_table")
+    common = dict(parameter_status="identified", message="", status="ok")
+    table = pd.DataFrame([
+        dict(kind="flow_rule", **{"lambda": 1.0}, parameter="beta", value=0.2, stderr=0.01,
+             fit_error=0.242, n_points=20, **common),
+        dict(kind="flow_rule", **{"lambda": 1.0}, parameter="gamma", value=0.0, stderr=0.05,
+             fit_error=0.242, n_points=20, **common),
+        dict(kind="alpha", **{"lambda": 0.5}, parameter="alpha_constant", value=1.14,
+             stderr=0.01, fit_error=0.01919, n_points=9, **common),
+        dict(kind="alpha", **{"lambda": 0.75}, parameter="alpha_constant", value=1.2,
+             stderr=0.01, fit_error=0.03, n_points=9, **common),
+        dict(kind="density", **{"lambda": 1.0}, parameter="c0", value=0.6, stderr=0.01,
+             fit_error=0.002, n_points=20, **common),
+    ])
+    rows = {(r["closure"], r["lambda"]): r for r in pt.fit_error_rows(table)}
+    assert set(rows) == {("flow_rule", 1.0), ("alpha", 0.5)}
+    assert rows[("flow_rule", 1.0)]["paper"] == 0.121
+    assert rows[("flow_rule", 1.0)]["ratio"] == pytest.approx(2.0)
+    assert rows[("alpha", 0.5)]["ratio"] == pytest.approx(1.0)
+
+
 def test_campaign_cost_sums_the_runs_last_log_lines(tmp_path):
     cc = _load("campaign_cost")
     lines = {"chute/linear/lambda~1/theta~24/H~10": "at t = 221 (500 flow particles, 87.3 s wall)",

@@ -38,6 +38,29 @@ PAPER = {
 }
 
 
+#: (kind, lambda) -> the paper's fit error, Eq. (49) of the residuals over its steady runs:
+#: Table 1's err(F) of the flow rule (Eq. 47) and Table 2's error of the shape factor alpha
+#: (Eq. 54 for lambda >= 5/6, a constant for lambda <= 2/3).  A campaign's ``fit_error`` near
+#: these says its misfit is the closure form's own (the paper's data scatter about it as much),
+#: however small each run's own standard error makes chi2/dof.
+PAPER_FIT_ERROR = {
+    ("flow_rule", 0.0): 0.886, ("flow_rule", 0.5): 0.229, ("flow_rule", 2 / 3): 0.104,
+    ("flow_rule", 5 / 6): 0.113, ("flow_rule", 1.0): 0.121, ("flow_rule", 2.0): 0.137,
+    ("alpha", 0.0): 0.012, ("alpha", 0.5): 0.01919, ("alpha", 2 / 3): 0.02741,
+    ("alpha", 5 / 6): 0.02558, ("alpha", 1.0): 0.01763, ("alpha", 2.0): 0.04479,
+}
+
+
+def paper_fit_error(kind: str, lam) -> float:
+    """The paper's Eq. (49) fit error of a closure at basal roughness ``lam`` (NaN if none)."""
+    if lam is None or not math.isfinite(float(lam)):
+        return math.nan
+    for (k, lm), v in PAPER_FIT_ERROR.items():
+        if k == kind and abs(lm - float(lam)) < 1e-6:
+            return v
+    return math.nan
+
+
 def paper_value(kind: str, parameter: str, lam=None) -> float:
     """The paper's value of a closure parameter (NaN when the paper gives none)."""
     for (k, lm, p), v in PAPER.items():
