@@ -455,3 +455,24 @@ def test_reference_configurations_are_the_papers_setups(name):
         b = cfg["campaigns"]["chute"]["hstop_bisection"]
         assert b["enabled"] and b["tolerance"] <= 0.25 and min(b["H"]) <= 2 and max(b["H"]) >= 16
         assert len({r.H for r in runs}) >= 3  # the flow rule from several heights
+
+
+def test_restart_parent_chains_each_height_from_its_middle_angle():
+    """The lambda = 1 reference's steady grid with neighbour restarts: at H = 20 (22-29 deg) the
+    root is 25 deg (lower middle of eight), 26 restarts from 25, 29 from 28, 22 from 23; at
+    H = 10 (22-28) the root is 25; brackets never restart; without the key nothing does."""
+    from granflow.campaign.grid import RunPoint, restart_parent
+
+    cfg = {"campaigns": {"chute": {"enabled": True, "restart_from_neighbour": True, "grids": [
+        {"theta": [22.0, 23.0, 24.0, 25.0, 26.0, 27.0, 28.0], "H": [10.0, 20.0]},
+        {"theta": [29.0], "H": [20.0]}]}}}
+
+    def parent(theta, H, kind="chute"):
+        q = restart_parent(cfg, RunPoint(kind, "linear", 1.0, theta, H))
+        return None if q is None else q.theta
+
+    assert [parent(t, 20.0) for t in range(22, 30)] == [23, 24, 25, None, 25, 26, 27, 28]
+    assert [parent(t, 10.0) for t in range(22, 29)] == [23, 24, 25, None, 25, 26, 27]
+    assert parent(26.0, 20.0, kind="bracket") is None
+    cfg["campaigns"]["chute"]["restart_from_neighbour"] = False
+    assert parent(26.0, 20.0) is None

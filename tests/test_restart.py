@@ -84,3 +84,39 @@ def test_a_state_of_another_chute_is_refused(parent, tmp_path):
     with pytest.raises(FileNotFoundError):
         simulate(dict(BASE, theta=26.0, t_end=1.0), tmp_path / "z",
                  from_state=tmp_path / "missing.npz")
+
+
+@pytest.mark.parametrize("parent_state", ["steady", "arrested", None])
+def test_from_if_steady_restarts_only_from_a_steady_parent(parent, tmp_path, parent_state):
+    """`--from-if-steady` (the workflow's neighbour restarts): a steady parent is restarted
+    from; an arrested parent, or one without a summary, gives a fresh fall bit-identical to a
+    run without any restart, and the outputs say why the parent was not used."""
+    import shutil
+
+    src = tmp_path / "parent"
+    src.mkdir()
+    shutil.copy(parent / "parent" / "final_state.npz", src / "final_state.npz")
+    if parent_state is not None:
+        s = json.loads((parent / "parent" / "summary.json").read_text())
+        (src / "summary.json").write_text(json.dumps(dict(s, flow_state=parent_state)))
+    run = tmp_path / "run.yaml"
+    run.write_text(yaml.safe_dump(dict(BASE, theta=28.0, t_end=1.0)))
+    out = tmp_path / "child"
+    assert main(["simulate", str(run), "--out", str(out),
+                 "--from-if-steady", str(src / "final_state.npz")]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    child = np.load(out / "final_state.npz")
+    if parent_state == "steady":
+        assert summary["parent"]["parent_state"] == str((src / "final_state.npz").resolve())
+        assert "restart_skipped" not in summary["parent"]
+        return
+    assert "parent_state" not in summary["parent"]
+    why = summary["parent"]["restart_skipped"]
+    assert ("'arrested'" in why) if parent_state else ("no readable summary.json" in why)
+    with xr.open_dataset(out / "series.nc") as ds:
+        assert ds.attrs["restart_skipped"] == why
+    fresh = simulate(dict(BASE, theta=28.0, t_end=1.0), tmp_path / "fresh", threads=1)
+    ref = np.load(tmp_path / "fresh" / "final_state.npz")
+    for key in ("pos", "vel", "omega"):
+        assert np.array_equal(child[key], ref[key]), key
+    assert fresh["t_final"] == summary["t_final"]

@@ -337,3 +337,34 @@ def test_killed_job_and_rerun_give_the_same_library(tiny, tmp_path):
     a = campaign_table(lib).set_index("run").sort_index()
     b = campaign_table(ref).set_index("run").sort_index()
     pd.testing.assert_frame_equal(a, b)
+
+
+def test_restart_from_neighbour_chains_steady_runs_from_the_middle_angle(tmp_path):
+    """``restart_from_neighbour: true``: the tiny grid's runs at H = 3 (18, 24, 26 deg) form a
+    chain rooted at 24 deg: the 18 and 26 deg runs need 24's final state and start from it with
+    --from-if-steady; 24 falls fresh.  Run for real, the 26 deg run's outputs name the 24 deg
+    run as parent, or say why they could not (24 deg not steady)."""
+    overlay = tmp_path / "restart.yaml"
+    overlay.write_text("campaigns:\n  chute:\n    restart_from_neighbour: true\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    base = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(work),
+            "--configfile", str(TINY), str(overlay)]
+    proc = _check(subprocess.run([*base, "-n", "-p"], capture_output=True, text=True,
+                                 timeout=300))
+    out = proc.stdout + proc.stderr
+    root = "chute/linear/lambda~1/theta~24/H~3/final_state.npz"
+    cmds = [c for c in out.splitlines() if " simulate " in c and "chute/linear" in c]
+    assert sum(f"--from-if-steady results/test-tiny/{root}" in c for c in cmds) == 2, out[-3000:]
+    assert not any("theta~24/H~3/params.yaml" in c and "--from" in c for c in cmds)
+    target = "results/test-tiny/chute/linear/lambda~1/theta~26/H~3/summary.json"
+    _check(subprocess.run([*base, "--cores", "2", target], capture_output=True, text=True,
+                          timeout=900))
+    child = json.loads((work / target).read_text())
+    parent = json.loads((work / "results/test-tiny/chute/linear/lambda~1/theta~24/H~3"
+                         / "summary.json").read_text())
+    if parent["flow_state"] == "steady":
+        assert child["parent"]["parent_state"] == str((work / "results/test-tiny" / root).resolve())
+        assert child["parent"]["parent_theta"] == 24.0
+    else:
+        assert repr(parent["flow_state"]) in child["parent"]["restart_skipped"]

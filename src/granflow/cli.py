@@ -183,7 +183,9 @@ def cmd_simulate(args):
         signal.signal(sig, stop)
     try:
         summary = simulate(params, args.out, base_file=args.base, threads=args.threads,
-                           from_state=args.from_state, max_threads=args.max_threads,
+                           from_state=args.from_state or args.from_if_steady,
+                           restart_if=("steady",) if args.from_if_steady else None,
+                           max_threads=args.max_threads,
                            core_lease=args.core_lease)
     finally:
         remove_pid_file()
@@ -262,9 +264,13 @@ def main(argv=None):
     p.add_argument("--core-lease", default=None, metavar="DIR",
                    help="lock folder shared with other runs, so that together they take at "
                         "most --max-threads threads (default $GRANFLOW_CORE_LEASE)")
-    p.add_argument("--from", dest="from_state", default=None, metavar="STATE",
-                   help="restart from a saved final_state.npz at the inclination of the "
-                        "parameter file (clock reset to 0; outputs name the parent run)")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--from", dest="from_state", default=None, metavar="STATE",
+                     help="restart from a saved final_state.npz at the inclination of the "
+                          "parameter file (clock reset to 0; outputs name the parent run)")
+    src.add_argument("--from-if-steady", dest="from_if_steady", default=None, metavar="STATE",
+                     help="as --from when the parent run (summary.json beside STATE) ended "
+                          "steady; otherwise a fresh fall onto --base, and the outputs say why")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("prepare-base", help="prepare a rough base for one lambda")

@@ -567,15 +567,38 @@ def restart_state(state_file, cfg: ChuteConfig):
     return system, {k: v for k, v in parent.items() if v is not None}
 
 
+def restart_decision(state_file, restart_if) -> tuple[bool, str]:
+    """Whether a restart from ``state_file`` goes ahead under ``restart_if`` (flow states the
+    parent run must have ended in, read from the summary.json beside the state; None: always).
+    Returns (go, reason); a parent without a summary, or in another state, is not used."""
+    if restart_if is None:
+        return True, ""
+    import json
+
+    summary = Path(state_file).parent / "summary.json"
+    try:
+        state = json.loads(summary.read_text()).get("flow_state")
+    except (OSError, ValueError):
+        return False, f"parent {os.fspath(state_file)!r} has no readable summary.json"
+    if state in restart_if:
+        return True, ""
+    return False, (f"parent {os.fspath(state_file)!r} ended {state!r}, not "
+                   f"{' or '.join(map(repr, restart_if))}")
+
+
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
              progress=None, extra_observers=(), from_state=None, max_threads: int | None = None,
-             core_lease=None) -> dict:
+             core_lease=None, restart_if=None) -> dict:
     """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
 
     ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
     run, after the built-in ones (e.g. a second :class:`~granflow.observers.ProfileObserver`
     with another coarse-graining choice).  ``from_state``: start from this saved state at the
-    inclination of ``params`` (:func:`restart_state`; ``base_file`` is not used).
+    inclination of ``params`` (:func:`restart_state`; ``base_file`` is not used);
+    ``restart_if`` (e.g. ``("steady",)``): only when the parent run ended in one of these flow
+    states, else a fresh fall onto ``base_file`` whose outputs record why
+    (``restart_skipped``) -- the workflow's neighbour restarts
+    (``campaigns.chute.restart_from_neighbour``) never start a run from an arrested layer.
     ``max_threads`` (default: ``$GRANFLOW_MAX_THREADS``, which the workflow sets to its
     ``--cores`` on a local machine): the numba engine takes up to this many threads while the
     machine has idle cores (:mod:`granflow.engine.threads`, shared with the campaign's other
@@ -605,6 +628,12 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     ckpt = out_dir / "checkpoint.npz"
     wall0, cpu0 = _time.monotonic(), cpu_seconds()
     parent = {}
+    if from_state is not None and restart_if is not None:
+        go, why = restart_decision(from_state, tuple(restart_if))
+        if not go:
+            log.info("restart skipped (%s): a fresh fall", why)
+            parent = {"restart_skipped": why}
+            from_state = None
     if from_state is not None:  # checked before any compute, also when resuming
         if engine != "numba":
             raise ValueError(f"engine: a restart from a saved state (--from) needs the numba "

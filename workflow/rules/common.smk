@@ -161,6 +161,21 @@ def base_of(wildcards):
     return f"{RESULTS}/{G.base_path(config, point_of(wildcards))}"
 
 
+def parent_state_of(wildcards):
+    """The neighbour's final state a steady run restarts from (restart_from_neighbour), or []."""
+    parent = G.restart_parent(config, point_of(wildcards))
+    return [f"{run_dir(parent)}/final_state.npz"] if parent is not None else []
+
+
+def restart_args(wildcards, input):
+    """`--from-if-steady STATE` for a run with a parent: restarted only if the parent ended
+    steady (granflow.simulate.restart_decision), else a fresh fall onto the base."""
+    parent = input.get("parent")
+    if not parent:
+        return ""
+    return f"--from-if-steady {parent if isinstance(parent, str) else parent[0]}"
+
+
 def simulate_priority(wildcards):
     """Scheduling priority of a run: the longest sequential work first, so that the last jobs
     of a campaign are short ones and both cores stay busy to the end (longest-processing-time

