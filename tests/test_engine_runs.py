@@ -167,3 +167,29 @@ def test_cli_reports_bad_parameter_file(tmp_path):
     assert res.returncode == 2
     assert "theta = 120 is out of range" in res.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_git_commit_names_the_loaded_code_not_the_checkout_at_write_time(monkeypatch, tmp_path):
+    """Provenance names the commit the process imported: a run started at commit A whose
+    outputs are written after the checkout moved to B still says A (an editable install under
+    development named B before).  An explicit path is read live."""
+    import granflow.provenance as prov
+
+    loaded = prov.git_commit()
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    env = dict(os.environ, GIT_AUTHOR_NAME="t", GIT_AUTHOR_EMAIL="t@t", GIT_COMMITTER_NAME="t",
+               GIT_COMMITTER_EMAIL="t@t")
+    for cmd in (["init", "-q"], ["commit", "-q", "--allow-empty", "-m", "a"]):
+        subprocess.run(["git", *cmd], cwd=repo, env=env, check=True)
+    first = prov.git_commit(repo)
+    subprocess.run(["git", "commit", "-q", "--allow-empty", "-m", "b"], cwd=repo, env=env,
+                   check=True)
+    assert len(first) == 40 and prov.git_commit(repo) not in (first, "unknown")
+
+    def moved_on(*args, **kwargs):  # the checkout's HEAD is now another commit
+        return subprocess.CompletedProcess(args, 0, stdout="f" * 40 + "\n", stderr="")
+
+    monkeypatch.setattr(prov.subprocess, "run", moved_on)
+    assert prov.git_commit() == loaded
+    assert prov.provenance_attrs()["git_commit"] == loaded

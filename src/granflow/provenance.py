@@ -22,9 +22,17 @@ from .units import UNIT_SYSTEM
 def git_commit(path: str | os.PathLike | None = None) -> str:
     """Commit hash of the git checkout holding ``path`` (default: this package), or 'unknown'.
 
-    A '+dirty' suffix marks uncommitted changes to tracked files.
+    A '+dirty' suffix marks uncommitted changes to tracked files.  Without ``path`` it is the
+    commit of the code this process *loaded*, read once when the module was imported: a run
+    that writes its outputs hours later, after the checkout has moved on (an editable install
+    under development), names the code that computed them, not the checkout's HEAD by then.
     """
-    where = Path(path) if path is not None else Path(__file__).resolve().parent
+    if path is None:
+        return _LOADED_COMMIT
+    return _query_git(Path(path))
+
+
+def _query_git(where: Path) -> str:
     try:
         commit = subprocess.run(
             ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=10
@@ -39,6 +47,9 @@ def git_commit(path: str | os.PathLike | None = None) -> str:
         return sha + ("+dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+
+
+_LOADED_COMMIT = _query_git(Path(__file__).resolve().parent)
 
 
 def _canonical(obj):
