@@ -44,12 +44,12 @@ def bracket_runs(*roots) -> pd.DataFrame:
     return pd.DataFrame(list(runs.values()), columns=["theta", "H", "state", "replicate"])
 
 
-def _paper_rows():
+def _paper_table():
     spec = importlib.util.spec_from_file_location("paper_table",
                                                   Path(__file__).with_name("paper_table.py"))
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    return mod.paper_rows
+    return mod
 
 
 def hstop_table(runs: pd.DataFrame, lam: float = 1.0):
@@ -60,7 +60,7 @@ def hstop_table(runs: pd.DataFrame, lam: float = 1.0):
                            "stderr": fit.stderr.get(p, math.nan),
                            "parameter_status": fit.param_status.get(p, "not_fitted"),
                            "message": fit.message} for p, v in fit.params.items()])
-    return iv, fit, _paper_rows()(table)
+    return iv, fit, _paper_table().paper_rows(table)
 
 
 def main():
@@ -71,11 +71,7 @@ def main():
     print(iv.sort_values(["H", "replicate"]).to_string(index=False))
     print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
           f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
-    print("| parameter | value +- stderr | paper | z | status | agrees |")
-    print("|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['parameter']} | {r['value']:.4g} +- {r['stderr']:.2g} | {r['paper']:g} | "
-              f"{r['z']:+.1f} | {r['status']} | {'yes' if r['agrees'] else 'no'} |")
+    _paper_table().print_paper_rows(rows, closure=False)
 
 
 if __name__ == "__main__":

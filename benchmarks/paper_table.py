@@ -71,19 +71,26 @@ def fit_error_rows(table: pd.DataFrame) -> list[dict]:
     return rows
 
 
+def print_paper_rows(rows, closure: bool = True):
+    """The rows of :func:`paper_rows` as a Markdown table (``closure``: with that column)."""
+    head = "| closure " if closure else ""
+    print(f"{head}| parameter | value +- stderr | paper | z | status | agrees |")
+    print("|---" * (7 if closure else 6) + "|")
+    for r in rows:
+        vs = "n/a" if not math.isfinite(r["value"]) else f"{r['value']:.4g} +- {r['stderr']:.2g}"
+        z = "" if not math.isfinite(r["z"]) else f"{r['z']:+.1f}"
+        first = f"| {r['closure']} " if closure else ""
+        print(f"{first}| {r['parameter']} | {vs} | {r['paper']:g} | {z} | "
+              f"{r['status']} | {'yes' if r['agrees'] else 'no'} |")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", type=Path)
     args = ap.parse_args()
     table = pd.read_csv(args.results / "closures.csv")
     rows = paper_rows(table)
-    print("| closure | parameter | value +- stderr | paper | z | status | agrees |")
-    print("|---|---|---|---|---|---|---|")
-    for r in rows:
-        vs = "n/a" if not math.isfinite(r["value"]) else f"{r['value']:.4g} +- {r['stderr']:.2g}"
-        z = "" if not math.isfinite(r["z"]) else f"{r['z']:+.1f}"
-        print(f"| {r['closure']} | {r['parameter']} | {vs} | {r['paper']:g} | {z} | "
-              f"{r['status']} | {'yes' if r['agrees'] else 'no'} |")
+    print_paper_rows(rows)
     n_ok = sum(r["agrees"] for r in rows)
     print(f"\n{n_ok} of {len(rows)} paper parameters agree (2 stderr or 5 %, identified only)")
     errs = fit_error_rows(table)
