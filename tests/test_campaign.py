@@ -476,3 +476,17 @@ def test_restart_parent_chains_each_height_from_its_middle_angle():
     assert parent(26.0, 20.0, kind="bracket") is None
     cfg["campaigns"]["chute"]["restart_from_neighbour"] = False
     assert parent(26.0, 20.0) is None
+
+
+def test_restart_from_neighbour_with_lammps_is_refused_naming_the_key():
+    """A LAMMPS run cannot restart from a saved state: the configuration is refused before any
+    compute, naming the key and what is allowed."""
+    from granflow.campaign.config import semantic_errors
+
+    cfg = {"campaigns": {"chute": {"enabled": True, "engine": "lammps", "Lx": 10.0, "Ly": 5.0,
+                                   "restart_from_neighbour": True,
+                                   "grids": [{"theta": [24.0, 26.0], "H": [10.0]}]}}}
+    errs = [e for e in semantic_errors(cfg) if "restart_from_neighbour" in e]
+    assert len(errs) == 1 and "allowed: false, or engine 'numba'" in errs[0]
+    cfg["campaigns"]["chute"]["restart_from_neighbour"] = False
+    assert not [e for e in semantic_errors(cfg) if "restart_from_neighbour" in e]
