@@ -348,3 +348,43 @@ def test_ensemble_members_that_are_no_friction_law_are_dropped():
     for bad in (dict(delta1=0.0), dict(delta2=19.0), dict(A=-1.0), dict(beta=0.0),
                 dict(gamma=float("nan"))):
         assert not _physical_friction({**ok, **bad}), bad
+
+
+def test_transient_diffusivity_recovers_each_species_and_the_window(tmp_path):
+    """Synthetic tracers with known answers: small particles random-walk with D = 0.01 and large
+    ones with 0.03 inside [50, 150], all at D = 0.5 outside it; the window [50, 150] gives each
+    species' D within 10 % and the population its particle-weighted mean."""
+    from granflow.continuum.experiments import transient_diffusivity
+
+    rng = np.random.default_rng(3)
+    dt, n_s, n_l = 0.5, 600, 300
+    t = np.arange(0.0, 200.0 + 1e-9, dt)
+    D = np.where((t[1:] > 50.0) & (t[1:] <= 150.0), 1.0, 0.0)
+    d = np.r_[np.ones(n_s), np.full(n_l, 1.6)]
+    Dp = np.r_[np.full(n_s, 0.01), np.full(n_l, 0.03)]
+    steps = rng.standard_normal((t.size - 1, d.size)) * np.sqrt(
+        2.0 * dt * (D[:, None] * Dp[None, :] + (1.0 - D[:, None]) * 0.5))
+    z = np.vstack([np.zeros(d.size), np.cumsum(steps, axis=0)])
+    np.savez(tmp_path / "tracers.npz", time=t, z=z, diameter=d)
+    r = transient_diffusivity(tmp_path, 50.0, 150.0)
+    assert (r["n_small"], r["n_particles"]) == (n_s, n_s + n_l)
+    assert r["D_small"] == pytest.approx(0.01, rel=0.1)
+    assert r["D_large"] == pytest.approx(0.03, rel=0.1)
+    assert r["D"] == pytest.approx((n_s * 0.01 + n_l * 0.03) / (n_s + n_l), rel=0.1)
+    assert 0 < r["D_stderr"] < 0.1 * r["D"]
+    with pytest.raises(ValueError, match="too little"):
+        transient_diffusivity(tmp_path, 195.0, 260.0)
+
+
+def test_matching_peclet_recovers_the_peclet_number_of_a_model_run():
+    """Round trip: the aligned half-time of T-eq. (27) at Ps = 12 (from s0 = a fifth of the way)
+    gives back Ps = 12 from a start at Ps = 6."""
+    from granflow.continuum.experiments import aligned_half_time, matching_peclet
+
+    h, D, phi0 = 8.0, 0.01, 0.5
+    res = segregation_layer(Ps=12.0, D=D, h=h, phi0=phi0, t_end=600.0, n=200, n_out=401)
+    s0 = 0.2 * float(res.indicator_steady)
+    th, _ = aligned_half_time(res.t.values, res.indicator.values,
+                              float(res.indicator_steady), s0)
+    assert matching_peclet(th, s0, D=D, h=h, phi0=phi0, Ps_from=6.0, t_end=600.0) == \
+        pytest.approx(12.0, rel=0.01)

@@ -50,8 +50,9 @@ Example: open a library and run each model ::
     h0 = 7.0 + 2.0 * np.exp(-((x - 50.0) / 8.0) ** 2)
     u0 = c.steady_froude(h0) * np.sqrt(c.g_cos * h0)
     res = shallow_layer(c, x, h0, u0, t_end=100.0)
-    # 3. segregation with the library's Ps and the measured diffusivity
-    D = float(lib.closures.diffusivity(u_bar=0.75, h=7.9, d_mean=1.5))
+    # 3. segregation with the library's Ps and the measured diffusivity (in a mixture at the
+    #    small diameter, as measured over segregation transients: experiments module docstring)
+    D = float(lib.closures.diffusivity(u_bar=0.75, h=7.9, d_mean=1.0))
     Ps, Ps_status = segregation_Ps_at(lib, 0.5)   # refused unless ok/reduced
     seg = segregation_layer(Ps=Ps, D=D, h=7.9, phi0=0.5, t_end=400.0)
 """

@@ -20,15 +20,25 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
 * **Diffusivity** (:func:`diffusivity_fit`): D of the switch runs' steady windows ->
   a ``diffusivity`` closure, added to a new version of the campaign's library
   (:func:`library_with_diffusivity`).
+* **Diffusivity where segregation acts** (:func:`run_segregation_tracers`,
+  :func:`transient_diffusivity`): each bidisperse run simulated again from its start (same
+  parameters and seed, so the same trajectory) with tracer heights, and D measured over its
+  segregation transient (from its start-up t0 to twice its half-time), all particles and per
+  species.  It chose the closure's length scale for a mixture: measured 2026-11-26 on
+  continuum-soft (sigma 0.5-0.8), D over the transient is 1.0-1.25x the closure at the *small*
+  diameter and does not grow with the large ones (the volume-weighted mean diameter, as Fan et
+  al. 2014's local mean, gave 1.3-2.25x the measured D), so :func:`compare_segregation` uses
+  ``d_mean = 1`` (:data:`SEGREGATION_D_LENGTH`).
 
 Command line: ``python -m granflow.continuum.experiments {switch,long-chute,diffusivity,
-compare} ...`` (``-h`` for the arguments); the slow tests in ``tests/test_continuum_slow.py``
+segregation-tracers,compare} ...`` (``-h`` for the arguments); the slow tests in ``tests/test_continuum_slow.py``
 run the comparisons with the issue's tolerances.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -45,6 +55,11 @@ TOL_STEADY_U = 0.05
 TOL_TAU = 0.25
 TOL_POSITION = 0.15
 TOL_HALF_TIME = 0.20
+
+#: length scale of the diffusivity closure D = c_D (u_bar/h) d^2 in a bidisperse layer, in
+#: small-particle diameters: "small" (d = 1, as measured over the segregation transients by
+#: :func:`transient_diffusivity`) or "volume_mean" (phi0 + (1 - phi0)/sigma)
+SEGREGATION_D_LENGTH = "small"
 
 
 def _summary(run_dir) -> dict:
@@ -441,6 +456,50 @@ def segregation_measurement(run_dir, smooth_bins: int = 3) -> dict:
             "t": (t[after] - t0).tolist(), "s": (vs[after] - s0).tolist()}
 
 
+def run_segregation_tracers(run_dir, out_dir, *, t_end: float = 250.0,
+                            tracer_interval: float = 0.5, threads: int = 1) -> dict:
+    """Simulate the bidisperse run in ``run_dir`` again from its start (its parameters and seed:
+    the same trajectory as far as it goes) to ``t_end`` without early stop, recording tracer
+    heights every ``tracer_interval`` into ``out_dir/tracers.npz``."""
+    from ..coarse.diffusion import TracerObserver
+    from ..simulate import simulate
+
+    out_dir = Path(out_dir)
+    params = dict(_summary(run_dir)["params"])
+    params.update(t_end=float(t_end), early_stop=False)
+    sample = params["t_c"] / 2.0 if params.get("sample_interval") is None else \
+        params["sample_interval"]
+    tracer = TracerObserver(every=max(1, int(round(tracer_interval / sample))))
+    res = simulate(params, out_dir, threads=threads, extra_observers=[tracer])
+    t, z, d = tracer.arrays()
+    np.savez(out_dir / "tracers.npz", time=t, z=z, diameter=d)
+    return res
+
+
+def transient_diffusivity(tracer_dir, t_from: float, t_to: float, *,
+                          tau_fit=(2.0, 10.0)) -> dict:
+    """Self-diffusivity in z over [t_from, t_to] of a run with ``tracers.npz``: all flow
+    particles (``D``, ``D_stderr``) and per species (``D_small``, ``D_large`` and stderrs; the
+    small ones are those of the smallest diameter)."""
+    from ..coarse.diffusion import self_diffusivity
+
+    with np.load(Path(tracer_dir) / "tracers.npz") as f:
+        t, z, d = f["time"], f["z"], f["diameter"]
+    w = (t >= t_from - 1e-9) & (t <= t_to + 1e-9)
+    if t[w].size < 3 or t[w][-1] - t[w][0] < tau_fit[1]:
+        raise ValueError(f"tracers of {tracer_dir} cover too little of [{t_from:g}, {t_to:g}]")
+    small = d <= d.min() + 1e-9
+    out = {"t_from": float(t_from), "t_to": float(t[w][-1]), "n_particles": int(d.size),
+           "n_small": int(small.sum())}
+    for name, m in (("", np.ones(d.shape, bool)), ("_small", small), ("_large", ~small)):
+        if m.sum() < 10:
+            out[f"D{name}"], out[f"D{name}_stderr"] = math.nan, math.nan
+            continue
+        r = self_diffusivity(t[w], z[w][:, m], float(t_from), tau_fit=tau_fit)
+        out[f"D{name}"], out[f"D{name}_stderr"] = r["D"], r["D_stderr"]
+    return out
+
+
 def level_time(t, s, level: float) -> float:
     """First time s(t) reaches ``level`` from its start s[0] (linear interpolation; t[0] if it
     starts there, NaN if never)."""
@@ -489,10 +548,17 @@ def segregation_Ps_at(lib, sigma, *, contact_law=None, allow_unidentified=False)
 
 
 def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
-                        n_ensemble: int = 50) -> dict:
+                        n_ensemble: int = 50, tracer_dir=None,
+                        d_length: str = SEGREGATION_D_LENGTH) -> dict:
     """One bidisperse run vs T-eq. (27) with both fluxes: Ps (symmetric, library) and
     (Ps, kappa) (asymmetric, the run's fit in ``segregation_fits.json``), D from the library's
-    diffusivity at the run's u_bar, h and volume-weighted mean diameter.
+    diffusivity at the run's u_bar, h and the length scale ``d_length`` (:data:`SEGREGATION_D_LENGTH`).
+
+    ``tracer_dir``: the run simulated again with tracers (:func:`run_segregation_tracers`):
+    then D measured over the run's transient (t0 to t0 + 2 half-times,
+    :func:`transient_diffusivity`) is recorded beside the closure's (``D_transient``,
+    ``D_closure_over_transient``) and the model is run with it too (``<flux>_D_transient``):
+    it separates the diffusivity closure's error from the rest of the model's.
 
     Non-ok closures: with ``allow_unidentified=True`` (the default here, as the comparison is
     meant to show how such closures predict) an ``unidentified`` Ps or diffusivity is used and
@@ -501,7 +567,9 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
 
     m = segregation_measurement(run_dir)
     sigma, phi0 = m["sigma"], m["phi0"]
-    d_mean = phi0 * 1.0 + (1.0 - phi0) / sigma
+    if d_length not in ("small", "volume_mean"):
+        raise ValueError(f"d_length = {d_length!r} is unknown: allowed 'small', 'volume_mean'")
+    d_mean = 1.0 if d_length == "small" else phi0 * 1.0 + (1.0 - phi0) / sigma
     Dds = lib.closures.diffusivity(m["u_bar"], m["h"], d_mean=d_mean, uncertainty=True,
                                    allow_unidentified=allow_unidentified)
     D, D_std = float(Dds["value"]), float(Dds["std"])
@@ -511,15 +579,25 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     prof = fit["profile"]
     t_end = max(m["t"][-1], 1.0)
     out = dict(m)
-    out.update(d_mean=d_mean, D=D, D_std=D_std, Ps=Ps, Ps_status=Ps_status,
+    out.update(d_mean=d_mean, d_length=d_length, D=D, D_std=D_std, Ps=Ps, Ps_status=Ps_status,
                Ps_asym=ex.get("asymmetric_Ps"), kappa=ex.get("asymmetric_kappa"))
+    variants = [("", D, D_std)]
+    if tracer_dir is not None:
+        th_p = m["t_half"] if math.isfinite(m["t_half"]) and m["t_half"] > 0 else 100.0
+        tr = transient_diffusivity(tracer_dir, m["t0"], m["t0"] + 2.0 * th_p)
+        out["transient"] = tr
+        out["D_transient"], out["D_transient_stderr"] = tr["D"], tr["D_stderr"]
+        out["D_closure_over_transient"] = D / tr["D"]
+        variants.append(("_D_transient", tr["D"], tr["D_stderr"]))
     zeta = np.asarray(prof["zeta"], float)
     phi_p = np.asarray(prof["phi"], float)
     s0 = float(m["s0"])  # the particle run's s when its flow has started (t0)
-    for name, kw in (("symmetric", dict(Ps=Ps, flux="symmetric")),
-                     ("asymmetric", dict(Ps=ex.get("asymmetric_Ps", Ps), flux="asymmetric",
-                                         kappa=min(max(float(ex.get("asymmetric_kappa", 0.0)),
-                                                       0.0), 0.99)))):
+    for (flux, kw), (suffix, D, D_std) in itertools.product(
+            (("symmetric", dict(Ps=Ps, flux="symmetric")),
+             ("asymmetric", dict(Ps=ex.get("asymmetric_Ps", Ps), flux="asymmetric",
+                                 kappa=min(max(float(ex.get("asymmetric_kappa", 0.0)), 0.0),
+                                           0.99)))), variants):
+        name = flux + suffix
         # the model starts mixed under steady shear; the particle run has segregated part-way
         # during its insertion fall before its shear is established (t0, s0).  Both clocks start
         # where s = s0: the model's at t_shift, where it reaches the particle run's s0; each
@@ -544,9 +622,38 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
                      "phi_rms_vs_particles": float(np.sqrt(np.mean((phi_model - phi_p) ** 2))),
                      "phi_model": phi_model.tolist()}
         out[name]["pass_t_half"] = bool(abs(out[name]["err_t_half"]) <= TOL_HALF_TIME)
+    if tracer_dir is not None and math.isfinite(out["symmetric_D_transient"]["t_half"]):
+        out["Ps_matching_half_time"] = matching_peclet(
+            m["t_half"], s0, D=out["D_transient"], h=m["h"], phi0=phi0, Ps_from=Ps,
+            t_end=2.0 * t_end)
     out["zeta"] = zeta.tolist()
     out["phi_particles"] = phi_p.tolist()
     return out
+
+
+def matching_peclet(t_half, s0, *, D, h, phi0, Ps_from, t_end, factor_max=20.0) -> float:
+    """The Peclet number Ps at which T-eq. (27) (symmetric flux, diffusivity D) gives the
+    particle run's aligned half-time ``t_half`` (from s0): what the run's segregation speed
+    S = Ps D / h says, independently of the steady profile's Ps.  NaN if no Ps in
+    [Ps_from / factor_max, Ps_from * factor_max] does."""
+    from scipy.optimize import brentq
+
+    from .segregation import segregation_layer
+
+    def err(log_ps):
+        res = segregation_layer(Ps=math.exp(log_ps), D=D, h=h, phi0=phi0, t_end=t_end, n=200,
+                                n_out=401)
+        th, _ = aligned_half_time(res.t.values, res.indicator.values,
+                                  float(res.indicator_steady), s0)
+        return (th if math.isfinite(th) else t_end) - t_half
+
+    lo, hi = math.log(Ps_from / factor_max), math.log(Ps_from * factor_max)
+    try:
+        if err(lo) * err(hi) > 0:
+            return math.nan
+        return float(math.exp(brentq(err, lo, hi, xtol=1e-3)))
+    except ValueError:
+        return math.nan
 
 
 # ----------------------------------------------------------------------------- all comparisons
@@ -556,8 +663,10 @@ def parent_of(child_dir) -> Path:
 
 
 def compare_all(lib_path, campaign_dir, switch_dirs, long_chute_dir, out_json, figures=None,
-                *, long_chute_theta=None, n_ensemble=100) -> dict:
-    """Every comparison of the module docstring into one JSON (and PNG figures)."""
+                *, long_chute_theta=None, n_ensemble=100, segregation_tracers=None) -> dict:
+    """Every comparison of the module docstring into one JSON (and PNG figures).
+    ``segregation_tracers``: folder with ``sigma~<sigma>`` runs of
+    :func:`run_segregation_tracers` (the transient diffusivity; optional)."""
     from ..closures import open_library
 
     lib = open_library(lib_path)
@@ -582,7 +691,13 @@ def compare_all(lib_path, campaign_dir, switch_dirs, long_chute_dir, out_json, f
     seg_fits = json.loads((Path(campaign_dir) / "segregation_fits.json").read_text())
     for run in sorted(Path(campaign_dir).glob("segregation/**/summary.json")):
         try:
-            res["segregation"].append(compare_segregation(lib, run.parent, seg_fits))
+            tr = None
+            if segregation_tracers is not None:
+                sig = _summary(run.parent)["params"]["sigma"]
+                cand = Path(segregation_tracers) / f"sigma~{sig:g}"
+                tr = cand if (cand / "tracers.npz").exists() else None
+            res["segregation"].append(compare_segregation(lib, run.parent, seg_fits,
+                                                          tracer_dir=tr))
         except Exception as exc:
             res["segregation"].append({"run": os.fspath(run.parent),
                                        "error": f"{type(exc).__name__}: {exc}"})
@@ -695,6 +810,11 @@ def main(argv=None):
     p.add_argument("--runs", nargs="+", required=True)
     p.add_argument("--campaign", required=True, help="campaign results folder")
     p.add_argument("--out", required=True, help="path of the library copy")
+    p = sub.add_parser("segregation-tracers",
+                       help="simulate a bidisperse run again from its start with tracers")
+    p.add_argument("run")
+    p.add_argument("--out", required=True)
+    p.add_argument("--t-end", type=float, default=250.0)
     p = sub.add_parser("compare", help="all comparisons -> JSON and figures")
     p.add_argument("--lib", required=True, help="closure library (with the diffusivity)")
     p.add_argument("--campaign", required=True)
@@ -702,6 +822,8 @@ def main(argv=None):
     p.add_argument("--long-chute", default=None)
     p.add_argument("--out", required=True, help="comparison JSON")
     p.add_argument("--figures", default=None)
+    p.add_argument("--segregation-tracers", default=None,
+                   help="folder of sigma~<sigma> runs of segregation-tracers")
     a = ap.parse_args(argv)
     if a.cmd == "switch":
         res = run_switch(a.parent, a.theta2, a.out, t_end=a.t_end)
@@ -720,8 +842,12 @@ def main(argv=None):
                      "status": fit.state, "library": info})
         print(f"c_D = {fit.params['c_D']:.4g} +- {fit.stderr['c_D']:.2g} ({fit.state}); "
               f"library {info['path']}")
+    elif a.cmd == "segregation-tracers":
+        res = run_segregation_tracers(a.run, a.out, t_end=a.t_end)
+        print(f"{a.out}/tracers.npz: t = {res['t_final']:.4g} ({res['wall_s']:.0f} s)")
     elif a.cmd == "compare":
-        res = compare_all(a.lib, a.campaign, a.switch_runs, a.long_chute, a.out, a.figures)
+        res = compare_all(a.lib, a.campaign, a.switch_runs, a.long_chute, a.out, a.figures,
+                          segregation_tracers=a.segregation_tracers)
         print(format_tables(res))
     return 0
 
@@ -766,6 +892,19 @@ def format_tables(res: dict) -> str:
                      f" {a['err_t_half']:+7.1%} {b['t_half']:7.1f}+-{b['t_half_std']:5.1f} "
                      f"{b['err_t_half']:+7.1%} {a['phi_rms_vs_particles']:7.3f} "
                      f"{b['phi_rms_vs_particles']:8.3f} {s['D']:8.4f} {s['Ps']:6.2f}")
+    tr = [s for s in res["segregation"] if "error" not in s and "D_transient" in s]
+    if tr:
+        lines += ["", "segregation with D measured over each run's transient (t0 ... t0 + 2 "
+                      "half-times)",
+                  f"{'sigma':>5} {'D_trans':>15} {'D_closure':>9} {'ratio':>6} {'t_half_p':>8} "
+                  f"{'sym':>14} {'err':>7} {'Ps':>6} {'Ps_match':>8}"]
+        for s in tr:
+            a = s["symmetric_D_transient"]
+            lines.append(f"{s['sigma']:5g} {s['D_transient']:8.5f}+-{s['D_transient_stderr']:.5f}"
+                         f" {s['D']:9.5f} {s['D_closure_over_transient']:6.2f} "
+                         f"{s['t_half']:8.1f} {a['t_half']:7.1f}+-{a['t_half_std']:5.1f} "
+                         f"{a['err_t_half']:+7.1%} {s['Ps']:6.2f} "
+                         f"{s.get('Ps_matching_half_time', math.nan):8.2f}")
     return "\n".join(lines)
 
 
