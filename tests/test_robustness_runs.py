@@ -367,3 +367,34 @@ def test_second_run_in_a_busy_folder_is_refused(bidisperse_job, tmp_path):
         first.send_signal(signal.SIGKILL)
         first.wait()
     cli.wait_for_previous_run(out / "simulate.pid", wait_s=0.5)  # stale pid file: ignored
+
+
+def test_engine_guard_ends_the_run_undecided_not_the_campaign(bidisperse_job, tmp_path):
+    """Particles far too soft for their fall (t_c = 0.2: impacts overlap ~20 % of a diameter)
+    trip the engine's overlap guard: the job still exits 0 with all outputs, flow state
+    'undecided' (left out of the fits), the guard's message in summary and series.nc; the same
+    command gives the same stop."""
+    tmp, _, base, _ = bidisperse_job
+    params = dict(theta=24.0, H=4.0, lam=1.0, Lx=6.0, Ly=4.0, seed=3, t_end=30.0, t_c=0.2,
+                  steps_per_collision=20, checkpoint_every_s=0.1)
+    pfile = tmp_path / "soft.yaml"
+    pfile.write_text(yaml.safe_dump(params))
+    stops = []
+    for k in range(2):
+        out = tmp_path / f"soft{k}"
+        res = run_cli(pfile, out, base)
+        assert res.returncode == 0, res.stderr
+        s = json.loads((out / "summary.json").read_text())
+        assert s["flow_state"] == "undecided"
+        assert "overlap" in s["engine_stop"] and "too soft" in s["engine_stop"]
+        assert s["classification"].startswith("undecided: the engine stopped the run at t = ")
+        assert s["stop_reason"].startswith("engine guard: overlap")
+        assert s["t_final"] < params["t_end"]
+        with xr.open_dataset(out / "series.nc") as ds:
+            assert ds.attrs["flow_state"] == "undecided"
+            assert ds.attrs["engine_stop"] == s["engine_stop"]
+        assert not (out / "checkpoint.npz").exists()
+        row = derive_row(out, rel="chute/linear/lambda~1/theta~24/H~4")["row"]
+        assert (row["state"], row["stop_reason"]) == ("undecided", "engine guard")
+        stops.append((s["t_final"], s["engine_stop"]))
+    assert stops[0] == stops[1]

@@ -24,6 +24,14 @@ gravity tilted to the new ``theta`` and the clock reset to t = 0 (the switch); t
 belong to the same chute (box, particle count, collision time), and the outputs name the parent
 run (``parent_state``, its sha256 and the parent's summary provenance).
 
+Engine guards (the numba engine's overlap and non-finite checks, :class:`SimulationError`): a run
+whose contacts leave the range its species was validated for (an overlap above 5 % of the
+smallest diameter: too soft for the load, e.g. a fast flow on a base of half-size particles) is
+not a result.  It ends there with its outputs written and flow state ``undecided`` (left out of
+every fit, listed in ``excluded_runs.csv``; flowing for an hstop bracket), ``engine_stop`` naming
+the guard, and what the classifier said until then in the explanation, instead of failing the
+whole campaign.  Rerunning the same command resumes from the checkpoint and stops identically.
+
 All outputs are written atomically; the checkpoint is removed only after they exist.
 """
 
@@ -40,7 +48,7 @@ from . import cfconventions
 from . import units as U
 from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_base
 from .engine.run import ChuteRun, cpu_seconds
-from .engine.system import ParticleSystem
+from .engine.system import ParticleSystem, SimulationError
 from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
 from .provenance import (atomic_to_netcdf, atomic_write_bytes, provenance_attrs,
                          remove_stale_temporaries)
@@ -696,22 +704,28 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         run.observers.append(seg_obs)
     run.observers.extend(extra_observers)
     extra_attrs = {}
+    engine_stop = None
     if lammps is None:
         try:
             run.try_resume()
         except Exception as exc:  # observer states missing or unreadable: same as a corrupt file
             raise _corrupt(ckpt, f"its observer states do not restore ({type(exc).__name__}: "
                                  f"{exc})", "checkpoint", remove=True) from None
-        if spare is None:
-            run.run()
-        else:
-            spare.start()
-            try:
+        try:
+            if spare is None:
                 run.run()
-            finally:
-                spare.close()
-                set_threads(threads)
-            log.info("spare cores: %s", spare.summary())  # the log only: outputs stay identical
+            else:
+                spare.start()
+                try:
+                    run.run()
+                finally:
+                    spare.close()
+                    set_threads(threads)
+                log.info("spare cores: %s", spare.summary())  # the log only: outputs identical
+        except SimulationError as exc:  # an engine guard: the run ends, not the campaign
+            engine_stop = str(exc)
+            run.stop_reason = f"engine guard: {exc}"
+            log.error("%s: the run stops here, flow state undecided", exc)
     else:
         try:
             lammps.start()
@@ -720,7 +734,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
             lammps.close()
         extra_attrs = lammps_attrs(lammps)
     out = write_outputs(p, out_dir, run, monitor_obs, profile_obs, seg_obs, extra_attrs,
-                        parent=parent)
+                        parent=parent, engine_stop=engine_stop)
     if ckpt.exists():
         ckpt.unlink()
     # wall_s: this process; cost: the whole run (all segments of a resumed run, CPU of all threads)
@@ -735,13 +749,14 @@ def lammps_attrs(lammps) -> dict:
 
 
 def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
-                  extra_attrs=None, parent=None) -> dict:
+                  extra_attrs=None, parent=None, engine_stop: str | None = None) -> dict:
     """Classify the run and write series.nc, profiles.nc, final_state.npz and summary.json.
 
     ``run`` offers ``system`` (``time``, ``fixed``, ``dt``, ``save(path)``; ``save`` may be
     None: no final state), ``stop_reason`` and ``series.arrays()``; the observers are the
     run's (any engine, or an ingest of dumps); ``parent``: the restart provenance of
-    :func:`restart_state`.  Returns the summary (plus ``profiles``).
+    :func:`restart_state`; ``engine_stop``: the message of an engine guard that ended the run
+    (the flow state is then ``undecided``).  Returns the summary (plus ``profiles``).
     """
     import json
 
@@ -751,6 +766,11 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
     final = monitor_obs.final()
     seg = seg_obs.final() if seg_obs is not None else None
     t_now = run.system.time
+    if engine_stop is not None:
+        final = dict(final, flow_state="undecided", steady_start=math.nan, confidence=0.0,
+                     explanation=(f"undecided: the engine stopped the run at t = {t_now:.6g} "
+                                  f"({engine_stop}); until then the classifier said "
+                                  f"{final['flow_state']}: {final['explanation']}"))
     if final["flow_state"] in ("steady", "layered") and math.isfinite(final["steady_start"]):
         t_from = final["steady_start"]
         if seg is not None:
@@ -770,6 +790,8 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
                  classification_statistics=final["statistics_json"], profile_time_from=t_from,
                  steady_min_onset=monitor_obs.monitor.min_onset)
     attrs.update(extra_attrs or {})
+    if engine_stop is not None:
+        attrs["engine_stop"] = engine_stop
     if seg is not None:
         attrs.update(segregation_state="steady" if seg["steady"] else "drifting",
                      segregation_onset=seg["onset"], segregation_explanation=seg["message"])
@@ -799,6 +821,8 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
     }
     if parent:
         summary["parent"] = dict(parent)
+    if engine_stop is not None:
+        summary["engine_stop"] = engine_stop
     if extra_attrs:
         summary["engine"] = dict(extra_attrs)
     where = f"theta = {p['theta']:g} deg, H = {p['H']:g}, lambda = {p['lam']:g}" + (
