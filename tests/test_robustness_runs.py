@@ -398,3 +398,13 @@ def test_engine_guard_ends_the_run_undecided_not_the_campaign(bidisperse_job, tm
         assert (row["state"], row["stop_reason"]) == ("undecided", "engine guard")
         stops.append((s["t_final"], s["engine_stop"]))
     assert stops[0] == stops[1]
+    # numerics.max_overlap moves the guard: at 0.5 of a diameter the same run is not stopped
+    pfile.write_text(yaml.safe_dump(dict(params, max_overlap=0.5)))
+    res = run_cli(pfile, tmp_path / "soft_allowed", base)
+    assert res.returncode == 0, res.stderr
+    s = json.loads((tmp_path / "soft_allowed" / "summary.json").read_text())
+    assert "engine_stop" not in s and s["t_final"] > stops[0][0]
+    pfile.write_text(yaml.safe_dump(dict(params, max_overlap=0.7)))
+    res = run_cli(pfile, tmp_path / "soft_bad", base)
+    assert res.returncode != 0 and "max_overlap = 0.7 is out of range: allowed (0.0, 0.5]" in res.stderr
+    assert not (tmp_path / "soft_bad").exists() or not any((tmp_path / "soft_bad").iterdir())

@@ -82,6 +82,8 @@ PARAMETERS = {
     "averaging_time": "averaging time after the steady onset, > 0 (paper 100)",
     "check_every": "time between steady-state checks, > 0",
     "min_accelerating_time": "earliest time an accelerating stop is allowed (default t_end/4)",
+    "max_overlap": ("engine guard: the largest contact overlap allowed, as a fraction of the "
+                    "smallest diameter, (0, 0.5] (default 0.05; numba engine)"),
     "cg_width": "coarse-graining width w, > 0 (paper 0.25)",
     "cg_dz": "z spacing of the depth profiles, > 0",
     "cg_window": "time-window length for profile spreads, > 0",
@@ -113,6 +115,7 @@ RANGES = {
     "base_layers": (3.0, 100.0, False, False), "sample_interval": (0.0, 1e6, True, False),
     "checkpoint_every_s": (0.0, 1e7, False, False), "averaging_time": (0.0, 1e7, True, False),
     "check_every": (0.0, 1e7, True, False), "min_accelerating_time": (0.0, 1e7, False, False),
+    "max_overlap": (0.0, 0.5, True, False),
     "cg_width": (0.0, 100.0, True, False), "cg_dz": (0.0, 10.0, True, False),
     "cg_window": (0.0, 1e7, True, False), "cg_every": (1, 10**6, False, False),
 }
@@ -121,7 +124,8 @@ INTEGER_PARAMETERS = ("seed", "cg_every")
 BOOLEAN_PARAMETERS = ("early_stop", "stop_when_flowing")
 CHOICE_PARAMETERS = ("contact_law", "cg_base_line")
 #: parameters that may be null (their default is derived from others)
-OPTIONAL_PARAMETERS = ("sample_interval", "min_accelerating_time", "base_t_c", "base_e", "base_mu_c")
+OPTIONAL_PARAMETERS = ("sample_interval", "min_accelerating_time", "base_t_c", "base_e", "base_mu_c",
+                       "max_overlap")
 #: most time steps a run may take (t_end / dt): 500 times the paper's protocol (2e7 steps)
 MAX_STEPS = 1e10
 
@@ -183,7 +187,8 @@ def validate_params(params: dict, *, check_machine: bool = True) -> dict:
              kt_over_kn=REFERENCE["kt_over_kn"], gt_over_gn=REFERENCE["gt_over_gn"], v_ref=1.0,
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
-             averaging_time=100.0, check_every=10.0, min_accelerating_time=None, cg_width=0.25,
+             averaging_time=100.0, check_every=10.0, min_accelerating_time=None, max_overlap=None,
+             cg_width=0.25,
              cg_dz=0.05, cg_window=10.0, cg_every=1, cg_base_line="contact_then_down",
              stop_when_flowing=False)
     p.update(params)
@@ -642,6 +647,9 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
             log.info("restart skipped (%s): a fresh fall", why)
             parent = {"restart_skipped": why}
             from_state = None
+    if p["max_overlap"] is not None and engine != "numba":
+        raise ValueError(f"max_overlap = {p['max_overlap']:g}: the {engine} engine's overlap "
+                         "guard is fixed at 0.05 of the smallest diameter; leave it null")
     if from_state is not None:  # checked before any compute, also when resuming
         if engine != "numba":
             raise ValueError(f"engine: a restart from a saved state (--from) needs the numba "
@@ -711,6 +719,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         except Exception as exc:  # observer states missing or unreadable: same as a corrupt file
             raise _corrupt(ckpt, f"its observer states do not restore ({type(exc).__name__}: "
                                  f"{exc})", "checkpoint", remove=True) from None
+        if p["max_overlap"] is not None:  # after the resume: the run's own system
+            run.system.max_overlap_fraction = float(p["max_overlap"])
         try:
             if spare is None:
                 run.run()

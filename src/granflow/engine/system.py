@@ -216,7 +216,8 @@ class ParticleSystem:
             self._cache_inverse()
         if self._pair is None:
             self._index_pairs()
-        max_allowed = MAX_OVERLAP_FRACTION * 2.0 * float(self.radius.min(initial=0.5))
+        frac = float(getattr(self, "max_overlap_fraction", MAX_OVERLAP_FRACTION))
+        max_allowed = frac * 2.0 * float(self.radius.min(initial=0.5))
         (self.pi, self.pj, self.hist_t, self.hist_dmax, self._pair, e_el, max_ov, e_rel, done,
          nreb, status) = K.advance(
             int(nsteps), self.pos, self.vel, self.omega, self.force, self.torque, self.radius,
@@ -239,7 +240,7 @@ class ParticleSystem:
                 "check the time step and the contact parameters")
         if status == 2:
             raise SimulationError(
-                f"overlap {max_ov:.4g} exceeds {MAX_OVERLAP_FRACTION:.0%} of the smallest diameter "
+                f"overlap {max_ov:.4g} exceeds {frac:.0%} of the smallest diameter "
                 f"at step {self.step_count}, t = {self.time:.6g}: the particles are too soft for "
                 "the load (reduce t_c) or the time step is too large")
 
