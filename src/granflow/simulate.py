@@ -25,8 +25,9 @@ belong to the same chute (box, particle count, collision time), and the outputs 
 run (``parent_state``, its sha256 and the parent's summary provenance).
 
 Engine guards (the numba engine's overlap and non-finite checks, :class:`SimulationError`): a run
-whose contacts leave the range its species was validated for (an overlap above 5 % of the
-smallest diameter: too soft for the load, e.g. a fast flow on a base of half-size particles) is
+whose contacts leave the range its species was validated for (an overlap above ``max_overlap``,
+by default 5 %, of the smallest diameter: too soft for the load, e.g. a fast flow on a base of
+half-size particles) is
 not a result.  It ends there with its outputs written and flow state ``undecided`` (left out of
 every fit, listed in ``excluded_runs.csv``; flowing for an hstop bracket), ``engine_stop`` naming
 the guard, and what the classifier said until then in the explanation, instead of failing the

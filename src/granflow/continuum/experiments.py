@@ -25,10 +25,10 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   parameters and seed, so the same trajectory) with tracer heights, and D measured over its
   segregation transient (from its start-up t0 to twice its half-time), all particles and per
   species.  It chose the closure's length scale for a mixture: measured 2026-11-26 on
-  continuum-soft (sigma 0.5-0.8), D over the transient is 1.0-1.25x the closure at the *small*
-  diameter and does not grow with the large ones (the volume-weighted mean diameter, as Fan et
-  al. 2014's local mean, gave 1.3-2.25x the measured D), so :func:`compare_segregation` uses
-  ``d_mean = 1`` (:data:`SEGREGATION_D_LENGTH`).
+  continuum-soft (sigma 0.5-0.9), D over the transient is 0.0088-0.0117 at every ratio, the
+  closure at the *small* diameter 0.78-1.05x of it, while the volume-weighted mean diameter (as
+  Fan et al. 2014's local mean) gave 1.5-1.8x at sigma 0.5-0.7; so :func:`compare_segregation`
+  uses ``d_mean = 1`` (:data:`SEGREGATION_D_LENGTH`).
 
 Command line: ``python -m granflow.continuum.experiments {switch,long-chute,diffusivity,
 segregation-tracers,compare} ...`` (``-h`` for the arguments); the slow tests in ``tests/test_continuum_slow.py``
@@ -81,18 +81,24 @@ def run_switch(parent_dir, theta2: float, out_dir, *, t_end: float = 250.0,
                tracer_interval: float = 0.5, threads: int = 1, **overrides) -> dict:
     """Restart the steady run in ``parent_dir`` at ``theta2`` (its parameters otherwise);
     records tracer heights every ``tracer_interval`` into ``tracers.npz``."""
+    parent_dir = Path(parent_dir)
+    params = dict(_summary(parent_dir)["params"])
+    params.update(theta=float(theta2), t_end=float(t_end), **overrides)
+    return _simulate_with_tracers(params, out_dir, tracer_interval, threads,
+                                  from_state=parent_dir / "final_state.npz")
+
+
+def _simulate_with_tracers(params, out_dir, tracer_interval, threads, **kw) -> dict:
+    """:func:`granflow.simulate.simulate` with a :class:`TracerObserver` every
+    ``tracer_interval``; the heights go to ``out_dir/tracers.npz``."""
     from ..coarse.diffusion import TracerObserver
     from ..simulate import simulate
 
-    parent_dir, out_dir = Path(parent_dir), Path(out_dir)
-    ps = _summary(parent_dir)
-    params = {k: v for k, v in ps["params"].items()}
-    params.update(theta=float(theta2), t_end=float(t_end), **overrides)
+    out_dir = Path(out_dir)
     sample = params["t_c"] / 2.0 if params.get("sample_interval") is None else \
         params["sample_interval"]
     tracer = TracerObserver(every=max(1, int(round(tracer_interval / sample))))
-    res = simulate(params, out_dir, threads=threads, from_state=parent_dir / "final_state.npz",
-                   extra_observers=[tracer])
+    res = simulate(params, out_dir, threads=threads, extra_observers=[tracer], **kw)
     t, z, d = tracer.arrays()
     np.savez(out_dir / "tracers.npz", time=t, z=z, diameter=d)
     return res
@@ -461,19 +467,9 @@ def run_segregation_tracers(run_dir, out_dir, *, t_end: float = 250.0,
     """Simulate the bidisperse run in ``run_dir`` again from its start (its parameters and seed:
     the same trajectory as far as it goes) to ``t_end`` without early stop, recording tracer
     heights every ``tracer_interval`` into ``out_dir/tracers.npz``."""
-    from ..coarse.diffusion import TracerObserver
-    from ..simulate import simulate
-
-    out_dir = Path(out_dir)
     params = dict(_summary(run_dir)["params"])
     params.update(t_end=float(t_end), early_stop=False)
-    sample = params["t_c"] / 2.0 if params.get("sample_interval") is None else \
-        params["sample_interval"]
-    tracer = TracerObserver(every=max(1, int(round(tracer_interval / sample))))
-    res = simulate(params, out_dir, threads=threads, extra_observers=[tracer])
-    t, z, d = tracer.arrays()
-    np.savez(out_dir / "tracers.npz", time=t, z=z, diameter=d)
-    return res
+    return _simulate_with_tracers(params, out_dir, tracer_interval, threads)
 
 
 def transient_diffusivity(tracer_dir, t_from: float, t_to: float, *,

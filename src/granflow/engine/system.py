@@ -76,6 +76,8 @@ class ParticleSystem:
         #: spatial order of the particles (see the module docstring); tests lower the threshold
         self.sort_min_mobile = K.SORT_MIN_MOBILE
         self.sort_every = K.SORT_EVERY
+        #: overlap guard of :meth:`step`, a fraction of the smallest diameter (numerics.max_overlap)
+        self.max_overlap_fraction = MAX_OVERLAP_FRACTION
         self.time = 0.0
         self.step_count = 0
         self.n_rebuilds = 0
@@ -216,7 +218,7 @@ class ParticleSystem:
             self._cache_inverse()
         if self._pair is None:
             self._index_pairs()
-        frac = float(getattr(self, "max_overlap_fraction", MAX_OVERLAP_FRACTION))
+        frac = float(self.max_overlap_fraction)
         max_allowed = frac * 2.0 * float(self.radius.min(initial=0.5))
         (self.pi, self.pj, self.hist_t, self.hist_dmax, self._pair, e_el, max_ov, e_rel, done,
          nreb, status) = K.advance(
