@@ -53,6 +53,29 @@ def test_paper_table_applies_the_two_stderr_or_five_percent_rule():
         0.5985 - math.exp((26.4 - 40.85) / 4.8), rel=1e-12)
 
 
+def test_paper_table_leaves_out_closures_the_campaign_has_no_runs_for():
+    """The lambda = 1/2 reference fits no lambda = 1 flow rule (only lambda = 1 brackets): those
+    rows (not_fitted, 0 runs) are outside its scope and not counted; a fit that failed on data
+    (not_fitted with runs) stays in and does not agree."""
+    pt = _load("paper_table")
+    common = dict(message="", stderr=math.nan, fit_error=math.nan, status="failed")
+    table = pd.DataFrame([
+        dict(kind="flow_rule", **{"lambda": 0.5}, parameter="beta", value=0.30, stderr=0.01,
+             parameter_status="identified", n_points=6, message="", fit_error=0.2, status="ok"),
+        dict(kind="flow_rule", **{"lambda": 1.0}, parameter="beta", value=math.nan,
+             parameter_status="not_fitted", n_points=0, **common),
+        dict(kind="alpha", **{"lambda": 1.0}, parameter="d_lambda", value=math.nan,
+             parameter_status="not_fitted", n_points=0, **common),
+        dict(kind="hstop", **{"lambda": 0.5}, parameter="delta1", value=math.nan,
+             parameter_status="not_fitted", n_points=4, **common),
+    ])
+    rows = {(r["closure"], r["parameter"], r["paper"]) for r in pt.paper_rows(table)}
+    assert rows == {("flow_rule", "beta", 0.300), ("hstop", "delta1", 17.913)}
+    assert pt.not_fitted(table) == [("alpha", 1.0), ("flow_rule", 1.0)]
+    errs = pt.fit_error_rows(table)
+    assert [(r["closure"], r["lambda"]) for r in errs] == [("flow_rule", 0.5)]
+
+
 def test_paper_table_sets_fit_errors_against_table_1_and_2():
     """err(F) of Table 1 and alpha's error of Table 2 per lambda; closures without a paper
     error (density) and lambdas the paper does not list are left out."""
