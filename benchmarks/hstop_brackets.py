@@ -2,10 +2,10 @@
 
 Reads every ``summary.json`` under ``<results>/bracket`` and ``<results>/chute`` (also of a
 campaign whose steady runs are still going: the bisection chains finish first), forms one
-arrested/flowing bracket per (H, replicate) as the library's fit does
+arrested/flowing bracket per (contact law, lambda, H, replicate) as the library's fit does
 (:func:`granflow.fitting.hstop.hstop_intervals_from_runs`), fits Eq. (45) with the library's
 settings (200 bootstrap refits, seed 1) and prints the brackets and the fit against Table 1
-(lambda = 1) with the rule of ``paper_table.py`` (2 stderr or 5 %, identified only).  Later
+(per lambda) with the rule of ``paper_table.py`` (2 stderr or 5 %, identified only).  Later
 results folders override earlier ones run by run (a chain rerun elsewhere replaces the
 original's runs at the same angle and height).
 
@@ -25,7 +25,8 @@ import pandas as pd
 
 from granflow.fitting.hstop import fit_hstop, hstop_intervals_from_runs
 
-POINT = re.compile(r"theta~([0-9.]+)/H~([0-9.]+)(?:/seed~(\d+))?/summary\.json$")
+POINT = re.compile(r"(?P<law>[A-Za-z_]+)/lambda~(?P<lam>[0-9.]+)/theta~(?P<theta>[0-9.]+)/"
+                   r"H~(?P<H>[0-9.]+)(?:/seed~(?P<seed>\d+))?/summary\.json$")
 
 
 def bracket_runs(*roots) -> pd.DataFrame:
@@ -39,9 +40,11 @@ def bracket_runs(*roots) -> pd.DataFrame:
                     continue
                 state = json.loads(f.read_text())["flow_state"]
                 runs[f.relative_to(root).as_posix()] = {
-                    "theta": float(m.group(1)), "H": float(m.group(2)), "state": state,
-                    "replicate": int(m.group(3) or 0)}
-    return pd.DataFrame(list(runs.values()), columns=["theta", "H", "state", "replicate"])
+                    "theta": float(m["theta"]), "H": float(m["H"]), "state": state,
+                    "replicate": int(m["seed"] or 0), "lambda": float(m["lam"]),
+                    "contact_law": m["law"]}
+    return pd.DataFrame(list(runs.values()),
+                        columns=["theta", "H", "state", "replicate", "lambda", "contact_law"])
 
 
 def _paper_table():
@@ -63,15 +66,24 @@ def hstop_table(runs: pd.DataFrame, lam: float = 1.0):
     return iv, fit, _paper_table().paper_rows(table)
 
 
+def hstop_tables(runs: pd.DataFrame) -> dict:
+    """{(contact law, lambda): (brackets, fit, rows against Table 1)}: one hstop curve per base
+    (the brackets of different lambdas or contact laws never mix)."""
+    return {(law, float(lam)): hstop_table(g, lam=float(lam))
+            for (law, lam), g in runs.groupby(["contact_law", "lambda"], sort=True)}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", type=Path, nargs="+")
     args = ap.parse_args()
-    iv, fit, rows = hstop_table(bracket_runs(*args.results))
-    print(iv.sort_values(["H", "replicate"]).to_string(index=False))
-    print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
-          f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
-    _paper_table().print_paper_rows(rows, closure=False)
+    runs = bracket_runs(*args.results)
+    for (law, lam), (iv, fit, rows) in hstop_tables(runs).items():
+        print(f"\n## contact law {law}, lambda = {lam:g}\n")
+        print(iv.sort_values(["H", "replicate"]).to_string(index=False))
+        print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
+              f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
+        _paper_table().print_paper_rows(rows, closure=False)
 
 
 if __name__ == "__main__":

@@ -167,8 +167,8 @@ def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_pa
     rng = np.random.default_rng(3)
     root, rerun = tmp_path / "a", tmp_path / "b"
 
-    def write(base, theta, H, k, state):
-        d = base / "bracket" / "linear" / "lambda~1" / f"theta~{theta:.2f}" / f"H~{H:g}"
+    def write(base, theta, H, k, state, lam="1"):
+        d = base / "bracket" / "linear" / f"lambda~{lam}" / f"theta~{theta:.2f}" / f"H~{H:g}"
         d = d / f"seed~{k}" if k else d
         d.mkdir(parents=True, exist_ok=True)
         (d / "summary.json").write_text(json.dumps({"flow_state": state}))
@@ -193,3 +193,15 @@ def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_pa
     row = iv2[(iv2.H == 24.0) & (iv2.replicate == 0)].iloc[0]
     assert row["theta_arrested_max"] == pytest.approx(float(flowing.theta.iloc[0]))
     assert math.isinf(row["theta_flowing_min"])
+    # lambda = 1/2 chains beside them (as in the lambda = 1/2 reference): a curve of their own,
+    # against Table 1's lambda = 1/2 row; the lambda = 1 fit is unchanged by them
+    for H in heights:
+        arrest = float(theta_stop_eq45(H, 17.913, 21.357, 11.959))
+        write(root, arrest - 0.05, H, 0, "arrested", lam="0.5")
+        write(root, arrest + 0.05, H, 0, "steady", lam="0.5")
+    tables = hb.hstop_tables(hb.bracket_runs(root))
+    assert set(tables) == {("linear", 1.0), ("linear", 0.5)}
+    assert len(tables[("linear", 0.5)][0]) == len(heights)
+    assert tables[("linear", 1.0)][1].params == pytest.approx(fit.params)
+    half = {r["parameter"]: r for r in tables[("linear", 0.5)][2]}
+    assert half["delta1"]["paper"] == 17.913 and half["delta1"]["agrees"], half
