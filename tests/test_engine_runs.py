@@ -193,3 +193,22 @@ def test_git_commit_names_the_loaded_code_not_the_checkout_at_write_time(monkeyp
     monkeypatch.setattr(prov.subprocess, "run", moved_on)
     assert prov.git_commit() == loaded
     assert prov.provenance_attrs()["git_commit"] == loaded
+
+
+def test_base_preparation_has_its_own_overlap_guard(monkeypatch):
+    """The base preparation settles under its own guard (chute.PREP_MAX_OVERLAP of lambda, not
+    the runs' 5 %: the paper's 20 x 10 box at lambda = 1/2 reached 5.02 % and was refused); the
+    guard stops a preparation that exceeds it, naming the overlap, and does not change a base
+    that stays below it (the same positions under a looser guard)."""
+    from granflow.engine import chute
+    from granflow.engine.system import SimulationError
+
+    cfg = chute.BaseConfig(lam=0.5, Lx=3.0, Ly=3.0, seed=2, base_layers=6.0, settle_time=5.0)
+    assert chute.PREP_MAX_OVERLAP > 0.05
+    a = chute.prepare_rough_base(cfg)
+    monkeypatch.setattr(chute, "PREP_MAX_OVERLAP", 0.5)
+    b = chute.prepare_rough_base(cfg)
+    assert len(a) > 10 and np.array_equal(a, b)
+    monkeypatch.setattr(chute, "PREP_MAX_OVERLAP", 1e-4)
+    with pytest.raises(SimulationError, match="overlap"):
+        chute.prepare_rough_base(cfg)
