@@ -4,8 +4,8 @@ Reads every ``summary.json`` under ``<results>/bracket`` and ``<results>/chute``
 campaign whose steady runs are still going: the bisection chains finish first), forms one
 arrested/flowing bracket per (contact law, lambda, H, replicate) as the library's fit does
 (:func:`granflow.fitting.hstop.hstop_intervals_from_runs`), fits Eq. (45) with the library's
-settings (200 bootstrap refits, seed 1) and prints the brackets and the fit against Table 1
-(per lambda) with the rule of ``paper_table.py`` (2 stderr or 5 %, identified only).  Later
+settings (200 bootstrap refits, seed 1) and prints the brackets (beside Table 1's theta_stop at
+each height) and the fit against Table 1 (per lambda) with the rule of ``paper_table.py`` (2 stderr or 5 %, identified only).  Later
 results folders override earlier ones run by run (a chain rerun elsewhere replaces the
 original's runs at the same angle and height).
 
@@ -23,7 +23,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from granflow.fitting.hstop import fit_hstop, hstop_intervals_from_runs
+from granflow.fitting.hstop import fit_hstop, hstop_intervals_from_runs, theta_stop_eq45
+from granflow.reference import paper_value
 
 POINT = re.compile(r"(?P<law>[A-Za-z_]+)/lambda~(?P<lam>[0-9.]+)/theta~(?P<theta>[0-9.]+)/"
                    r"H~(?P<H>[0-9.]+)(?:/seed~(?P<seed>\d+))?/summary\.json$")
@@ -66,6 +67,21 @@ def hstop_table(runs: pd.DataFrame, lam: float = 1.0):
     return iv, fit, _paper_table().paper_rows(table)
 
 
+def with_paper_curve(iv: pd.DataFrame, lam: float) -> pd.DataFrame:
+    """The brackets with Table 1's theta_stop(H; lambda) (Eq. 45 inverted at the filling height,
+    as the fit reads it) and where it lies against each bracket: ``paper_offset`` is the
+    bracket's midpoint minus the paper's angle (NaN for one-sided brackets or a lambda the
+    paper does not list)."""
+    p = [paper_value("hstop", k, lam) for k in ("delta1", "delta2", "A")]
+    out = iv.copy()
+    out["paper_theta_stop"] = (theta_stop_eq45(out["H"].to_numpy(float), *p)
+                               if all(math.isfinite(v) for v in p) else math.nan)
+    mid = 0.5 * (out["theta_arrested_max"] + out["theta_flowing_min"])
+    out["paper_offset"] = (mid - out["paper_theta_stop"]).where(
+        out["theta_arrested_max"].gt(-math.inf) & out["theta_flowing_min"].lt(math.inf))
+    return out
+
+
 def hstop_tables(runs: pd.DataFrame) -> dict:
     """{(contact law, lambda): (brackets, fit, rows against Table 1)}: one hstop curve per base
     (the brackets of different lambdas or contact laws never mix)."""
@@ -80,7 +96,8 @@ def main():
     runs = bracket_runs(*args.results)
     for (law, lam), (iv, fit, rows) in hstop_tables(runs).items():
         print(f"\n## contact law {law}, lambda = {lam:g}\n")
-        print(iv.sort_values(["H", "replicate"]).to_string(index=False))
+        print(with_paper_curve(iv, lam).sort_values(["H", "replicate"])
+              .to_string(index=False, float_format=lambda v: f"{v:.2f}"))
         print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
               f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
         _paper_table().print_paper_rows(rows, closure=False)

@@ -203,5 +203,8 @@ def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_pa
     assert set(tables) == {("linear", 1.0), ("linear", 0.5)}
     assert len(tables[("linear", 0.5)][0]) == len(heights)
     assert tables[("linear", 1.0)][1].params == pytest.approx(fit.params)
+    iv_half = hb.with_paper_curve(tables[("linear", 0.5)][0], 0.5)
+    # each bracket straddles Table 1's angle by construction: offsets of 0 (to rounding)
+    assert np.allclose(iv_half["paper_offset"], 0.0, atol=0.006)
     half = {r["parameter"]: r for r in tables[("linear", 0.5)][2]}
     assert half["delta1"]["paper"] == 17.913 and half["delta1"]["agrees"], half
