@@ -136,6 +136,10 @@ BAD = [
     (("campaigns", "chute", "contact_law", 0), "foo", "contact_law[0] = 'foo'",
      "linear, hertz, plastic"),
     (("numerics", "t_end"), -1.0, "numerics.t_end = -1.0", "> 0"),
+    (("campaigns", "chute", "hstop_bisection", "protocol"), "restart", "protocol = 'restart'",
+     "'fresh_fall', 'continuation'"),
+    (("campaigns", "chute", "hstop_bisection", "arrest_horizon"), 0.0, "arrest_horizon = 0.0",
+     "(0, 1e5]"),
 ]
 
 
@@ -163,6 +167,37 @@ def test_unknown_keys_are_rejected_at_every_level():
     errors = schema_errors(cfg, SCHEMA)
     assert any("thetta" in e and "allowed keys" in e for e in errors)
     assert any("speciess" in e for e in errors)
+
+
+def test_continuation_bracket_runs_start_from_the_nearest_flowing_run_above():
+    """Continuation protocol (paper §6): a bracket run starts from the chain's flowing run at
+    the smallest angle above it (none yet: a fresh fall), runs to the arrest horizon (500)
+    unless arrested or steady; fresh_fall (the default) keeps the decisively-flowing stop."""
+    state = {"law": "linear", "lam": 0.5, "H": 16.0, "replicate": 2, "step": 3,
+             "bisection": {"runs": [[20.4, "arrested"], [21.4, "steady"],
+                                    [20.9, "accelerating"], [19.4, "arrested"]], "next": 20.65}}
+    parent = HS.bisection_parent(state)
+    assert (parent.kind, parent.theta, parent.H, parent.lam, parent.replicate) == (
+        "bracket", 20.9, 16.0, 0.5, 2)
+    state["bisection"]["runs"] = [[20.4, "arrested"]]
+    state["bisection"]["next"] = 21.4  # stepping up from an arrest: no flowing run yet
+    assert HS.bisection_parent(state) is None
+    state["bisection"]["next"] = None
+    assert HS.bisection_parent(state) is None
+
+    cfg = copy.deepcopy(load("reference-lambda-half.yaml"))
+    p = G.RunPoint("bracket", "linear", 0.5, 20.65, 16.0)
+    keys = ("t_end", "stop_when_flowing", "early_stop")
+    assert HS.bisection_protocol(cfg["campaigns"]["chute"]["hstop_bisection"])[0] == "fresh_fall"
+    assert [G.run_params(cfg, p)[k] for k in keys] == [2000.0, True, True]
+    cfg["campaigns"]["chute"]["hstop_bisection"]["protocol"] = "continuation"
+    assert [G.run_params(cfg, p)[k] for k in keys] == [500.0, False, True]
+    cfg["campaigns"]["chute"]["hstop_bisection"]["arrest_horizon"] = 300.0
+    assert G.run_params(cfg, p)["t_end"] == 300.0
+    # a steady grid run is not a bracket: unchanged
+    q = G.RunPoint("chute", "linear", 0.5, 26.0, 20.0)
+    assert G.run_params(cfg, q)["t_end"] == 2000.0
+    assert not schema_errors(cfg, SCHEMA)
 
 
 def test_bisection_replicates_per_height_and_bad_heights():

@@ -170,6 +170,39 @@ def _bisection_plan(tmp_path, bisection_yaml):
     return out, dict(re.findall(r"^(\w+)\s+(\d+)$", out, re.M))
 
 
+def test_continuation_chain_starts_each_bracket_run_from_the_flowing_run_above(tmp_path):
+    """hstop_bisection.protocol: continuation (paper §6): the chain's first run falls fresh and
+    flows; the next, 4 deg lower, starts from its final state (its summary names that state and
+    its sha256), and both run under the arrest horizon (t_end 20 here) without the
+    decisively-flowing stop."""
+    overlay = tmp_path / "continuation.yaml"
+    overlay.write_text(
+        "campaigns:\n  chute:\n    hstop_bisection:\n      enabled: true\n      H: [2.0]\n"
+        "      guess: {2.0: 32.0}\n      step: 4.0\n      tolerance: 1.0\n      max_runs: 2\n"
+        "      protocol: continuation\n      arrest_horizon: 20.0\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    chain = RESULTS / "hstop" / "linear" / "lambda~1" / "bisect" / "H~2" / "rep~0" / "chain.json"
+    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(work),
+           "--cores", "2", "--configfile", str(TINY), str(overlay), "--", str(chain)]
+    _check(subprocess.run(cmd, capture_output=True, text=True, timeout=600))
+    state = json.loads((work / chain).read_text())
+    runs = state["bisection"]["runs"]
+    assert [t for t, _ in runs] == [32.0, 28.0] and runs[0][1] != "arrested", runs
+    res = work / RESULTS / "bracket" / "linear" / "lambda~1"
+    first = json.loads((res / "theta~32" / "H~2" / "summary.json").read_text())
+    second = json.loads((res / "theta~28" / "H~2" / "summary.json").read_text())
+    assert "parent_state" not in json.dumps(first.get("parent") or {})
+    parent_file = res / "theta~32" / "H~2" / "final_state.npz"
+    assert Path(second["parent"]["parent_state"]) == parent_file.resolve()
+    import hashlib
+    assert second["parent"]["parent_state_sha256"] == hashlib.sha256(
+        parent_file.read_bytes()).hexdigest()
+    for summary in (first, second):
+        assert summary["params"]["t_end"] == 20.0
+        assert summary["params"]["stop_when_flowing"] is False
+
+
 def test_bisection_chains_all_start_at_once(tmp_path):
     """Three hstop bisection chains (H = 2, 3, 5) are all in the plan from the start: three
     first steps and three chain files, so that the chains run side by side (before the

@@ -37,6 +37,7 @@ SEARCH = (CHUTE.get("hstop_search") or {}) if G.enabled(config, "chute") else {}
 SEARCH_ON = bool(SEARCH.get("enabled", False))
 BISECT = (CHUTE.get("hstop_bisection") or {}) if G.enabled(config, "chute") else {}
 BISECT_ON = bool(BISECT.get("enabled", False))
+BISECT_PROTOCOL = HS.bisection_protocol(BISECT)[0] if BISECT_ON else "fresh_fall"
 SEG = G.campaign_cfg(config, "segregation")
 SEG_WINDOW = float(
     SEG.get("profile_window")
@@ -162,18 +163,25 @@ def base_of(wildcards):
 
 
 def parent_state_of(wildcards):
-    """The neighbour's final state a steady run restarts from (restart_from_neighbour), or []."""
-    parent = G.restart_parent(config, point_of(wildcards))
+    """The final state a run starts from, or []: a steady run's neighbour
+    (restart_from_neighbour), or a bracket run's flowing predecessor in its bisection chain
+    (hstop_bisection.protocol: continuation)."""
+    p = point_of(wildcards)
+    parent = bisect_parent_of(p) if p.kind == "bracket" else G.restart_parent(config, p)
     return [f"{run_dir(parent)}/final_state.npz"] if parent is not None else []
 
 
 def restart_args(wildcards, input):
-    """`--from-if-steady STATE` for a run with a parent: restarted only if the parent ended
-    steady (granflow.simulate.restart_decision), else a fresh fall onto the base."""
+    """`--from-if-steady STATE` for a run with a neighbour: restarted only if the parent ended
+    steady (granflow.simulate.restart_decision), else a fresh fall onto the base; `--from
+    STATE` for a continued bracket run (its parent is flowing by construction)."""
     parent = input.get("parent")
     if not parent:
         return ""
-    return f"--from-if-steady {parent if isinstance(parent, str) else parent[0]}"
+    parent = parent if isinstance(parent, str) else parent[0]
+    if point_of(wildcards).kind == "bracket":
+        return f"--from {parent}"
+    return f"--from-if-steady {parent}"
 
 
 def simulate_priority(wildcards):
@@ -255,6 +263,25 @@ def bisect_chains():
             for k in range(HS.bisection_replicates(BISECT, H))]
 
 
+def bisect_parent_of(p):
+    """Continuation protocol: the chain's run whose final state bracket run ``p`` starts from
+    (granflow.campaign.hstop.bisection_parent of the chain state that proposed ``p``), or None
+    (fresh fall: the fresh_fall protocol, or no flowing run in the chain yet)."""
+    if BISECT_PROTOCOL != "continuation":
+        return None
+    keys = dict(law=p.law, lam=G.format_value(p.lam), H=G.format_value(p.H),
+                k=str(int(p.replicate or 0)))
+    i = 0
+    while True:
+        state = HS.read_state(checkpoints.hstop_bisect_step.get(i=str(i), **keys).output[0])
+        nxt = HS.bisection_next_point(state)
+        if nxt is None:
+            return None
+        if abs(nxt.theta - p.theta) < 1e-9:
+            return HS.bisection_parent(state)
+        i += 1
+
+
 def bisect_step_input(wildcards):
     """Step i needs state i-1 (a checkpoint) and the bracket run that state proposes."""
     i = int(wildcards.i)
@@ -272,7 +299,7 @@ def bisect_step_input(wildcards):
 def bisect_step_args(wildcards, input):
     if int(wildcards.i) == 0:
         settings = {k: v for k, v in BISECT.items()
-                    if k not in ("enabled", "lambda", "H", "replicates")}
+                    if k not in ("enabled", "lambda", "H", "replicates") + HS.BISECTION_RUN_KEYS}
         return f"--settings {shlex.quote(json.dumps(settings, sort_keys=True))}"
     rel = os.path.relpath(os.path.dirname(input.summary), RESULTS)
     return f"--state {input.state} --summary {input.summary} --run {rel}"

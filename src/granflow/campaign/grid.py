@@ -234,7 +234,9 @@ def run_params(config: dict, p: RunPoint) -> dict:
 
     Layering: species, then ``numerics``, then the campaign's own ``numerics`` overrides, then
     the box, base thickness and the grid values of the point; a ``bracket`` run (hstop
-    bisection) is a chute run that stops as soon as it is decisively flowing; a campaign with
+    bisection) is a chute run that stops as soon as it is decisively flowing (under the
+    ``continuation`` protocol: one that runs to the arrest horizon unless arrested or steady,
+    :data:`granflow.campaign.hstop.BISECTION_PROTOCOLS`); a campaign with
     ``engine: lammps`` adds ``engine`` (the run is then carried out by LAMMPS,
     :mod:`granflow.lammps`).
     """
@@ -249,8 +251,15 @@ def run_params(config: dict, p: RunPoint) -> dict:
                   base_layers=base_settings(config)["layers"])
     if p.kind == "segregation":
         params.update(sigma=p.sigma, phi0=float(c.get("phi0", 0.5)))
-    if p.kind == "bracket":  # arrested or decisively flowing is all a bracket needs
-        params.update(stop_when_flowing=True, early_stop=True)
+    if p.kind == "bracket":
+        from .hstop import bisection_protocol
+
+        protocol, horizon = bisection_protocol(c.get("hstop_bisection") or {})
+        if protocol == "continuation":  # arrested within the horizon, or flowing
+            params.update(stop_when_flowing=False, early_stop=True,
+                          t_end=min(float(params.get("t_end", horizon)), horizon))
+        else:  # arrested or decisively flowing is all a bracket needs
+            params.update(stop_when_flowing=True, early_stop=True)
     if p.replicate:  # replicate k: the insertion seed + k (the base is shared)
         params["seed"] = int(params.get("seed", 1)) + int(p.replicate)
     if c.get("engine", "numba") != "numba":  # absent for numba: older run parameters unchanged

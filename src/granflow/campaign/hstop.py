@@ -81,6 +81,36 @@ def intervals(state: dict):
 # ----------------------------------------------------------------------------- bisection chains
 #: Bisection keyword arguments a configuration may set (campaigns.chute.hstop_bisection)
 BISECTION_KEYS = ("step", "tolerance", "max_runs", "theta_min", "theta_max", "resolution")
+#: How a chain's bracket runs start (``hstop_bisection.protocol``):
+#:
+#: * ``fresh_fall`` (default): every bracket run is a fresh fall onto the base, stopped as soon as
+#:   it is arrested or decisively flowing;
+#: * ``continuation``: the paper's §6 reading ("initial conditions determined by the following
+#:   algorithm ... from this initial flowing state ... the angle decreased by 1/2 deg"): a bracket
+#:   run starts from the final state of the chain's flowing run at the nearest angle above it
+#:   (a fresh fall while the chain has none), and is arrested only if it arrests within
+#:   ``arrest_horizon`` (500 time units), otherwise flowing.  Measured on the lambda = 1/2 base
+#:   (H = 16, 10 x 5, paper species, 2026-11-26): a fresh fall arrests at 20.40 deg, while the
+#:   flow continued from 20.65 deg stays steady at 20.40 (u_bar 4.8) and still flows at 19.90
+#:   -- a hysteresis of the thick layers that the fresh falls put above Table 1's hstop curve.
+BISECTION_PROTOCOLS = ("fresh_fall", "continuation")
+#: Paper §6: arrested when E_kin/<E_ela> falls below 1e-5 within 500 time units.
+ARREST_HORIZON = 500.0
+#: keys of ``hstop_bisection`` that are not :class:`Bisection` settings (not passed to step 0)
+BISECTION_RUN_KEYS = ("protocol", "arrest_horizon")
+
+
+def bisection_protocol(cfg: dict) -> tuple[str, float]:
+    """(protocol, arrest horizon) of an ``hstop_bisection`` block (defaults: fresh falls, 500)."""
+    proto = str(cfg.get("protocol") or "fresh_fall")
+    if proto not in BISECTION_PROTOCOLS:
+        raise ValueError(f"config key campaigns.chute.hstop_bisection.protocol = {proto!r}: "
+                         f"allowed {list(BISECTION_PROTOCOLS)}")
+    horizon = float(cfg.get("arrest_horizon") or ARREST_HORIZON)
+    if not horizon > 0:
+        raise ValueError("config key campaigns.chute.hstop_bisection.arrest_horizon = "
+                         f"{horizon:g}: allowed > 0")
+    return proto, horizon
 
 
 def bisection_guess(cfg: dict, H: float, lam: float | None = None) -> float:
@@ -144,6 +174,21 @@ def bisection_next_point(state: dict) -> RunPoint | None:
     if nxt is None:
         return None
     return RunPoint("bracket", state["law"], float(state["lam"]), float(nxt), float(state["H"]),
+                    replicate=int(state.get("replicate", 0)))
+
+
+def bisection_parent(state: dict) -> RunPoint | None:
+    """Continuation protocol: the run whose final state the bracket run that ``state`` proposes
+    starts from -- the chain's flowing (not arrested) run at the smallest angle above the
+    proposed one; None while the chain has none (a fresh fall) or when it is finished."""
+    nxt = bisection_next_point(state)
+    if nxt is None:
+        return None
+    above = [float(t) for t, s in state["bisection"]["runs"]
+             if s != "arrested" and float(t) > nxt.theta + 1e-9]
+    if not above:
+        return None
+    return RunPoint("bracket", state["law"], float(state["lam"]), min(above), float(state["H"]),
                     replicate=int(state.get("replicate", 0)))
 
 
