@@ -8,6 +8,7 @@ from granflow.steady.classify import (
     LAYERING_THRESHOLD,
     STATES,
     classify_flow,
+    layered_state,
     layering_amplitude,
     oscillation_cycles,
 )
@@ -167,6 +168,26 @@ def test_layering_amplitude_and_layered_state():
     # layering does not override arrest
     dead = classify_flow(T, 0.1 * np.exp(-T / 50.0), density_profile=_profile(0.3, z), z=z)
     assert dead.state == "arrested"
+
+
+def test_layered_state_of_a_finished_run_from_its_profile():
+    """The run-level rule (granflow.simulate writes it, the campaign row applies it to older
+    runs): a steady run whose averaged bulk profile is layered above the threshold becomes
+    "layered" with the amplitude in its explanation; a disordered one, a non-steady one and a
+    layer too thin for a bulk stay as they are."""
+    z = np.linspace(-2.0, 25.0, 1081)
+    state, amp, note = layered_state("steady", z, _profile(0.3, z))
+    assert state == "layered" and amp == pytest.approx(0.3, rel=0.05)
+    assert f"{amp:.3f}" in note and str(LAYERING_THRESHOLD) in note
+    assert layered_state("steady", z, _profile(0.03, z))[:1] == ("steady",)
+    # just either side of the threshold
+    assert layered_state("steady", z, _profile(1.2 * LAYERING_THRESHOLD, z))[0] == "layered"
+    assert layered_state("steady", z, _profile(0.8 * LAYERING_THRESHOLD, z))[0] == "steady"
+    for other in ("arrested", "accelerating", "oscillating", "undecided"):
+        assert layered_state(other, z, _profile(0.3, z))[0] == other
+    thin = np.where((z > 0.0) & (z < 3.0), 0.6, 0.0) * (1.0 + 0.3 * np.sin(2 * np.pi * z))
+    state, amp, note = layered_state("steady", z, thin)
+    assert state == "steady" and np.isnan(amp) and note == ""
 
 
 def test_layering_with_close_packed_period():

@@ -53,6 +53,7 @@ from .engine.system import ParticleSystem, SimulationError
 from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
 from .provenance import (atomic_to_netcdf, atomic_write_bytes, provenance_attrs,
                          remove_stale_temporaries)
+from .steady.classify import layered_state
 
 log = logging.getLogger(__name__)
 
@@ -814,6 +815,14 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
         ds["segregation_indicator"].attrs = U.cf(
             U.LENGTH, "small-particle centre of mass height minus that of all flow particles")
     profiles = profile_obs.dataset(t_from=t_from, attrs=attrs)
+    # a steady run layered in z (paper §8) is "layered": the energy ratio cannot tell
+    state, layering, note = layered_state(final["flow_state"], profiles["z"].values,
+                                          profiles["volume_fraction"].values)
+    if state != final["flow_state"]:
+        final = dict(final, flow_state=state, explanation=final["explanation"] + note)
+    for d in (ds, profiles):
+        d.attrs.update(flow_state=final["flow_state"], classification=final["explanation"],
+                       layering_amplitude=layering)
     try:
         averages = depth_average_summary(profiles, theta_deg=p["theta"])
     except Exception as exc:  # e.g. a run with no material in the grid: keep the failure visible
@@ -824,6 +833,7 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
         "steady_start": final["steady_start"], "state_confidence": final["confidence"],
         "classification": final["explanation"], "stop_reason": run.stop_reason,
         "t_final": t_now, "profile_time_from": t_from, "n_flow": attrs["n_flow"],
+        "layering_amplitude": layering,
         "params": {k: v for k, v in p.items() if v is not None},
         "depth_averages": averages,
         "segregation": None if seg is None else {

@@ -265,6 +265,16 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
                n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")),
                segregation_state="" if seg_state is None else
                ("steady" if seg_state else "drifting"), replicate=float(point.replicate))
+    if row["state"] == "steady" and "layering_amplitude" not in summ:
+        # a run classified before layering was checked (granflow.simulate does it since
+        # 2026-11-26): the same rule on its steady-window profile
+        import xarray as xr
+
+        from ..steady.classify import layered_state
+
+        with xr.open_dataset(run_dir / "profiles.nc") as prof:
+            row["state"] = layered_state(row["state"], prof["z"].values,
+                                         prof["volume_fraction"].values)[0]
     out = {"row": row, "excluded": None, "segregation_fit": None, "segregation_profile": None}
     if row["state"] not in FLOW_STATES:
         out["excluded"] = (f"flow state {row['state']!r} (not one of {FLOW_STATES}): "

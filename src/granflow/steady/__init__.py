@@ -9,7 +9,8 @@
 * :mod:`.hstop_search` -- the paper's adaptive (theta, H) walk bracketing h_stop(theta) (§6).
 """
 
-from .classify import FlowClassification, classify_flow, layering_amplitude, oscillation_cycles
+from .classify import (FlowClassification, classify_flow, layered_state, layering_amplitude,
+                       oscillation_cycles)
 from .hstop_search import ARREST_HORIZON, HstopInterval, HstopSearch, is_flowing, run_hstop_search
 from .monitor import MonitorDecision, SteadyStateMonitor
 from .timeseries import (
@@ -37,6 +38,7 @@ __all__ = [
     "detect_equilibration",
     "is_flowing",
     "layering_amplitude",
+    "layered_state",
     "oscillation_cycles",
     "run_hstop_search",
     "standard_error_of_mean",

@@ -67,6 +67,7 @@ __all__ = [
     "classify_flow",
     "oscillation_cycles",
     "layering_amplitude",
+    "layered_state",
 ]
 
 STATES = ("arrested", "steady", "accelerating", "layered", "oscillating", "undecided")
@@ -324,6 +325,24 @@ def layering_amplitude(z, density, *, bulk: tuple[float, float] | None = None,
     if best_amp < 0:
         return {**nan, "bulk_lo": float(lo), "bulk_hi": float(hi)}
     return {"amplitude": float(best_amp), "period": best_p, "bulk_lo": float(lo), "bulk_hi": float(hi)}
+
+
+def layered_state(state: str, z, density) -> tuple[str, float, str]:
+    """A steady run whose time-averaged bulk density profile is layered in z (first-harmonic
+    amplitude above :data:`LAYERING_THRESHOLD`, :func:`layering_amplitude`) is ``layered``
+    (paper §8: the lambda = 1/2 flows "strongly layered throughout the flow"; Eq. 47 and the
+    shape factor are fitted to disordered flows only).  Returns (state, amplitude, note to
+    append to the explanation).  Other states, and profiles too thin for a bulk, are unchanged.
+
+    The energy-ratio classification cannot see this (a layered flow is as steady as a disordered
+    one); measured on the lambda = 1/2 reference (2026-11-26): H = 10 at 23, 26, 27, 28 deg
+    amplitudes 0.333, 0.140, 0.108, 0.065 (Froude numbers +188, +42, +30, +16 % above Eq. 47),
+    H = 20 and 30 at 26-27 deg 0.03-0.04; the lambda = 1 reference's steady runs at most 0.021."""
+    amp = float(layering_amplitude(z, density)["amplitude"])
+    if state == "steady" and math.isfinite(amp) and amp > LAYERING_THRESHOLD:
+        return "layered", amp, (f"; layered in z: bulk density first-harmonic amplitude "
+                                f"{amp:.3f} > {LAYERING_THRESHOLD:g}")
+    return state, amp, ""
 
 
 def _trend_ok(res: TrendResult) -> bool:
