@@ -249,6 +249,15 @@ def test_bulk_density_recovers_eq52():
     three = fit_bulk_density(theta[:3], rho_c[:3])
     assert three.form != "full" and three.param_status["c0"] == "not_in_form"
     assert fit_bulk_density(theta[:2], rho_c[:2]).status == "failed"
+    # ... nor do many runs at three angles (the lambda = 1/2 reference's 26, 27, 28 deg): Eq. 52
+    # would interpolate the three means exactly; the linear form is what they identify
+    grid = np.repeat([26.0, 27.0, 28.0], 4)
+    rho_g = density_eq52(grid, **DENSITY) + RHO_PARTICLE * rng.normal(0.0, 0.002, grid.size)
+    on3 = fit_bulk_density(grid, rho_g)
+    assert on3.form == "linear" and on3.param_status["c1"] == "not_in_form", on3.message
+    on4 = fit_bulk_density(np.repeat([24.0, 26.0, 28.0, 29.0], 4),
+                           density_eq52(np.repeat([24.0, 26.0, 28.0, 29.0], 4), **DENSITY))
+    assert on4.form == "full"
 
 
 def test_stress_ratio_recovers_eq53():

@@ -83,6 +83,17 @@ def _result_from(kind, equation, all_params, form: Form, lsq, x, y, n, coords, v
         extra=ex, ensemble=ens, diagnostics=diag)
 
 
+def _distinct_x(x) -> int | None:
+    """Number of distinct values of a 1-D abscissa (None for other inputs)."""
+    try:
+        xa = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if xa.ndim != 1:
+        return None
+    return int(np.unique(np.round(xa[np.isfinite(xa)], 9)).size)
+
+
 def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, sigma=None,
               ids=None, coords=None, valid_range=None, extra=None, error_measure: str = "",
               selection: str = "", n_ensemble: int = N_ENSEMBLE, seed: int = 0,
@@ -114,6 +125,16 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
             attempts.append((form, failed_fit(kind, equation, all_params,
                                               f"{form.name} form: {n} runs, need {need}", n,
                                               **coords)))
+            continue
+        n_x = _distinct_x(x)
+        if len(form.free) >= 3 and n_x is not None and n_x <= len(form.free):
+            # a curve of k >= 3 parameters through k distinct abscissae interpolates their means:
+            # its form is untested and its curvature set by the scatter (measured: Eq. 52 on
+            # five lambda = 1/2 runs at 26, 27, 28 deg gave c1 = 0.61 +- 0.10 deg, "identified")
+            attempts.append((form, failed_fit(
+                kind, equation, all_params,
+                f"{form.name} form: {len(form.free)} parameters on {n_x} distinct x values "
+                f"(need {len(form.free) + 1})", n, **coords)))
             continue
         try:
             lsq = least_squares(form.model, x, y, form.p0(x, y), form.free, sigma=s,
