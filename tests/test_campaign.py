@@ -96,6 +96,10 @@ def test_default_campaign_covers_every_closure():
     text = reductions_vs_paper(cfg)
     assert "collision time" not in text and "chute box 10 x 5" in text
     assert "hstop brackets from bisection chains at H = 1.5, 2, 3, 5, 8, 13 (0.5 deg wide)" in text
+    assert "fall fresh onto the base instead of continuing from a flowing state" in text
+    cont = copy.deepcopy(cfg)
+    cont["campaigns"]["chute"]["hstop_bisection"]["protocol"] = "continuation"
+    assert "fall fresh" not in reductions_vs_paper(cont)
     assert "measured bias" not in text
     # the shallow segregation sweep carries the measured effect of its depth on Ps
     assert "the depth sets Ps, not the box length or the stiffness" in text

@@ -90,6 +90,12 @@ def config_differences(config: dict) -> list[str]:
             out.append(f"hstop brackets from bisection chains at H = {_fmt(list(bis.get('H') or []))}"
                        + (f" ({tol:g} deg wide)" if tol is not None else "")
                        + " instead of the paper's adaptive search")
+            if (bis.get("protocol") or "fresh_fall") == "fresh_fall":
+                # measured 2026-11-26 (granflow.campaign.hstop.BISECTION_PROTOCOLS)
+                out.append("hstop bracket runs fall fresh onto the base instead of continuing "
+                           "from a flowing state (paper §6): thick layers are hysteretic, "
+                           "measured at H = 24: arrests 0.25-0.5 deg higher at lambda = 1, "
+                           "at least 1.5 deg higher at lambda = 1/2")
         elif not hs.get("enabled", False):
             out.append("hstop brackets from a fixed (theta, H) grid instead of the paper's "
                        "adaptive search")
