@@ -62,6 +62,38 @@ def test_each_identifiability_test_fails_on_its_own():
     assert "only a combination" in ridge.param_reason["d0"]
 
 
+def test_parameter_traded_against_an_active_bound_is_not_identified():
+    """Brackets with no rise of theta_stop in thin layers (the lambda = 1/2 reference's fresh
+    falls: 20.2-21.0 deg from H = 1.5 to 24) push delta2 - delta1 to its upper bound; the
+    bootstrap, every refit at that bound, gave A = 0.0065 +- 0.0018, 'identified'.  A refit
+    with the bound moved (60 -> 30 deg) moves A by ~20 stderr: A follows the bound and is
+    unidentified; delta1 (the thick-layer angle the brackets do show) does not move and stays
+    identified."""
+    # the reference's 19 two-sided brackets (H, seed), arrested angle; flowing = + 0.25 deg
+    H = np.array([1.5] * 3 + [2.0] * 3 + [3.0] * 3 + [4.0] * 3 + [6.0] * 3 + [8.0, 12.0, 16.0,
+                                                                           24.0])
+    lo = np.array([21.73, 20.98, 21.48, 21.12, 21.37, 21.37, 19.93, 20.68, 20.68, 21.26, 20.01,
+                   20.51, 19.97, 19.97, 20.47, 20.24, 20.65, 20.40, 20.82])
+    iv = pd.DataFrame({"H": H, "theta_arrested_max": lo, "theta_flowing_min": lo + 0.25,
+                       "replicate": [0, 1, 2] * 5 + [0] * 4})
+    r = fit_hstop(iv, lam=0.5, n_bootstrap=50)
+    assert r.param_status["delta2"] == "unidentified"
+    assert "bound" in r.param_reason["delta2"]
+    assert r.param_status["A"] == "unidentified"
+    assert "determined by the bound of delta2" in r.param_reason["A"]
+    assert r.param_status["delta1"] == "identified"
+    assert r.params["delta1"] == pytest.approx(20.3, abs=0.3)
+    assert r.status == "unidentified" and not r.ok
+    # brackets on Table 1's lambda = 1 curve: no bound active, nothing conditional
+    H1 = np.array([1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 40.0])
+    th = theta_stop_eq45(H1, **HSTOP1)
+    iv1 = pd.DataFrame({"H": H1, "theta_arrested_max": th - 0.125,
+                        "theta_flowing_min": th + 0.125})
+    r1 = fit_hstop(iv1, lam=1.0, n_bootstrap=50)
+    assert r1.extra["at_bound"] == [] and r1.extra["bound_conditional"] == {}
+    assert r1.param_status["A"] == "identified"
+
+
 def test_heldout_limit_is_three_for_one_run_and_bonferroni_for_many():
     assert heldout_limit(1) == pytest.approx(3.0, abs=1e-9)
     # the largest of n standard normals exceeds the limit with probability 0.27 %

@@ -51,6 +51,13 @@ FLOWING_STATES = ("steady", "accelerating", "layered", "oscillating", "undecided
 #: optimiser bounds of (delta1, delta2 - delta1, A)
 _LOWER = (0.0, 1e-3, 1e-6)
 _UPPER = (89.0, 60.0, 1e5)
+#: where an active bound is moved to test what the other parameters owe to it: a refit with the
+#: bound there (still physically meaningless on either side: delta2 - delta1 of 30 deg, A of
+#: 1e-3 d) must not move a parameter by more than its stderr, else that parameter is determined
+#: only by the bound (:func:`bound_conditional`)
+_MOVED_LOWER = (5.0, 0.25, 1e-3)
+_MOVED_UPPER = (60.0, 30.0, 1e3)
+_WHICH = {"delta1": 0, "delta2": 1, "A": 2}
 
 
 # ---------------------------------------------------------------------------- closed forms
@@ -184,14 +191,17 @@ def _residuals(p, H, lo, hi, two_sided, tie, theta_stop, d):
     return r
 
 
-def _solve(H, lo, hi, tie, theta_stop, d, starts):
+def _solve(H, lo, hi, tie, theta_stop, d, starts, bounds=(_LOWER, _UPPER)):
     two_sided = np.isfinite(lo) & np.isfinite(hi)
+    lower, upper = (np.asarray(b, dtype=float) for b in bounds)
     best = None
     for p0 in starts:
+        p0 = np.clip(p0, lower + 1e-9 * np.maximum(1.0, np.abs(lower)),
+                     upper - 1e-9 * np.maximum(1.0, np.abs(upper)))
         try:
             sol = optimize.least_squares(
                 _residuals, p0, args=(H, lo, hi, two_sided, tie, theta_stop, d),
-                bounds=(list(_LOWER), list(_UPPER)), x_scale=[1.0, 1.0, max(p0[2], 1e-3)],
+                bounds=(list(lower), list(upper)), x_scale=[1.0, 1.0, max(p0[2], 1e-3)],
                 method="trf", xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=1000)
         except (ValueError, FloatingPointError):
             continue
@@ -218,6 +228,50 @@ def _starts(H, lo, hi, d):
             A0 = float(np.median(A_est)) if A_est.size else 3.0
             starts.append(np.array([d1, d2 - d1, A0]))
     return starts
+
+
+def bound_conditional(H, lo, hi, tie, theta_stop, d, x, stderr, at_b) -> dict:
+    """Parameters that only an active optimiser bound determines: ``{name: reason}``.
+
+    A parameter at a bound is not a result (:mod:`.identify`), and neither is a parameter that
+    the fit trades against it: with delta2 - delta1 at its upper bound, brackets that show no
+    rise of theta_stop in thin layers fix only (tan delta2 - tan delta1) A, so A follows the
+    bound and its bootstrap stderr (every refit at the same bound) says nothing about it.  The
+    fit is repeated with each active bound moved (:data:`_MOVED_LOWER`, :data:`_MOVED_UPPER`);
+    a parameter not at a bound that moves by more than its stderr is conditional on the bound.
+    """
+    if not at_b:
+        return {}
+    lower, upper = list(_LOWER), list(_UPPER)
+    moved = []
+    for name in at_b:
+        j = _WHICH[name]
+        if abs(x[j] - _UPPER[j]) <= abs(x[j] - _LOWER[j]):
+            upper[j] = _MOVED_UPPER[j]
+            moved.append(f"{'delta2 - delta1' if j == 1 else name} <= {_UPPER[j]:g} -> "
+                         f"{_MOVED_UPPER[j]:g}")
+        else:
+            lower[j] = _MOVED_LOWER[j]
+            moved.append(f"{'delta2 - delta1' if j == 1 else name} >= {_LOWER[j]:g} -> "
+                         f"{_MOVED_LOWER[j]:g}")
+    sol = _solve(H, lo, hi, tie, theta_stop, d, [np.asarray(x, dtype=float)]
+                 + _starts(H, lo, hi, d), bounds=(lower, upper))
+    if sol is None or not sol.success:
+        return {n: f"conditional on {', '.join(at_b)} at an optimiser bound (a refit with the "
+                   f"bound moved did not converge)" for n in _WHICH if n not in at_b}
+    new = {"delta1": sol.x[0], "delta2": sol.x[0] + sol.x[1], "A": sol.x[2]}
+    old = {"delta1": x[0], "delta2": x[0] + x[1], "A": x[2]}
+    out = {}
+    for name in _WHICH:
+        if name in at_b:
+            continue
+        shift = abs(new[name] - old[name])
+        se = stderr.get(name, math.nan)
+        if not (math.isfinite(se) and se > 0) or shift > se:
+            out[name] = (f"determined by the bound of {', '.join(at_b)}: moving it "
+                         f"({'; '.join(moved)}) moves {name} from {old[name]:.4g} to "
+                         f"{new[name]:.4g}, {shift / se if se > 0 else math.inf:.1f} stderr")
+    return out
 
 
 def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_break, d,
@@ -267,6 +321,7 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
                                              ("delta2", width, _LOWER[1], _UPPER[1]),
                                              ("A", A, _LOWER[2], _UPPER[2]))
             if at_bound(v, lo_b, hi_b)]
+    conditional = bound_conditional(H, lo, hi, tie_break, theta_stop, d, best.x, stderr, at_b)
     return FitResult(
         kind=kind, equation=equation, params=params, stderr=stderr, error=error_eq49(dist),
         n_points=int(n), ok=True,
@@ -278,7 +333,7 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
                      "h": (float(H.min()), float(H.max()))},
         coords={k: v for k, v in coords.items() if v is not None},
         extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break,
-               "at_bound": at_b,
+               "at_bound": at_b, "bound_conditional": conditional,
                "intervals": {"H": H.tolist(), "lo": lo.tolist(), "hi": hi.tolist(),
                              "replicate": rep.tolist()}},
         ensemble=tuple(tuple(map(float, row)) for row in boot),

@@ -18,7 +18,12 @@ before it is stored (issue 13).  :func:`assess` marks each parameter of a :class
   4. no other parameter of the fit is correlated with it beyond ``|r| > 0.999``
      (:data:`CORRELATION_LIMIT`; the bootstrap ensemble or the covariance gives r): there the
      data fix only a combination of the two (the ridge is 2000 times longer than it is wide)
-     and each one alone is arbitrary along it.
+     and each one alone is arbitrary along it;
+  5. it does not follow another parameter's active bound (``extra['bound_conditional']``, set
+     by fits that can test it, :func:`granflow.fitting.hstop.bound_conditional`): a refit with
+     that bound moved does not move it by more than its stderr.  (A bootstrap whose every
+     refit sits at the same bound reports a small stderr for the parameter traded against
+     it.)
 
 * ``unidentified`` otherwise (the reason says which test failed), ``fixed`` when a reduced form
   sets it (the reason says to what and why), ``not_in_form`` when the stored form lacks it.
@@ -104,7 +109,8 @@ def heldout_limit(n: int, z1: float = HELDOUT_Z_LIMIT, dof: int | None = None) -
 CRITERION = (
     "identified: stderr finite and > 0; not within a relative 1e-6 of an optimiser bound; "
     "stderr <= max(rel |value|, abs) with the per-parameter (rel, abs) of "
-    "granflow.fitting.identify.TOLERANCES; |correlation| with every other parameter <= 0.999. "
+    "granflow.fitting.identify.TOLERANCES; |correlation| with every other parameter <= 0.999; "
+    "not moved by more than its stderr when another parameter's active bound is moved. "
     "Closure ok when every parameter of its (full or stated reduced) form is identified and "
     "no held-out run has |z| above 3 (one run; for n runs the Bonferroni-equivalent limit, "
     "granflow.fitting.identify.heldout_limit).")
@@ -185,6 +191,8 @@ def assess_parameters(result: FitResult, free: Sequence[str] | None = None,
             why.append(f"at the optimiser bound ({lo_hi[0]:.6g}, {lo_hi[1]:.6g})")
         elif n in result.extra.get("at_bound", ()):
             why.append("at an optimiser bound")
+        if n in (result.extra.get("bound_conditional") or {}):
+            why.append(result.extra["bound_conditional"][n])
         if math.isfinite(se) and se > 0 and se > lim:
             what = (f"{rel:g} |value| = {rel * abs(v):.3g}" if rel * abs(v) >= ab
                     else f"the absolute tolerance {ab:g}")
