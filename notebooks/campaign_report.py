@@ -194,14 +194,15 @@ if len(excluded):
 # ## Flow-state map and hstop(theta) (Fig. 4 / 9)
 # Every chute run at its inclination theta and filling height H, marked by its flow state, with
 # the fitted stopping height hstop(theta; lambda) of Eq. (45) (solid) and the exponential form
-# Eq. (38) (dashed, comparison only).  The fit minimises the horizontal distance of the curve to
+# Eq. (38) (dash-dotted, comparison only), and the paper's Table 1 curve at that lambda
+# (dotted red; the paper's species, so a comparison for campaigns at other species).  The fit minimises the horizontal distance of the curve to
 # the arrested/flowing intervals of each height.  Runs the classifier left undecided at their
 # cap (crosses) are flowing in the paper's binary sense (§6) and bracket hstop, but enter no
 # other fit.
 
 # %%
 panels = [(law, lam) for law in laws for lam in lams] or [("none", 1.0)]
-fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.8), squeeze=False)
+fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 5.0), squeeze=False)
 for ax, (law, lam) in zip(axes[0], panels):
     sub = chute[(chute["contact_law"] == law) & np.isclose(chute["lam"], lam)]
     for state, (marker, colour) in STATE_STYLE.items():
@@ -224,12 +225,20 @@ for ax, (law, lam) in zip(axes[0], panels):
         h = hstop_eq38(th, r38.params["delta1"], r38.params["delta2"], r38.params["A"])
         ax.plot(th, np.where(np.isfinite(h) & (h > 0), h, np.nan), "k-.", lw=0.8,
                 label=f"Eq. (38) (comparison) [{r38.state}]")
-    top = (sub["H"].max() * 1.4) if len(sub) else 10
+    # the paper's curve at this lambda (Table 1: its species, linear law), for comparison
+    from granflow.reference import paper_value as _pv
+    paper = {k: _pv("hstop", k, lam) for k in ("delta1", "delta2", "A")}
+    if law == "linear" and all(np.isfinite(v) for v in paper.values()):
+        hp = hstop_eq45(th, **paper)
+        ax.plot(th, np.where(np.isfinite(hp) & (hp > 0), hp, np.nan), color="tab:red", ls=":",
+                lw=1.2, label=f"Table 1, λ = {lam:g} (paper species)")
+    top = (sub["H"].max() * 1.15) if len(sub) else 10
     ax.set_ylim(0, top)
     ax.set_xlabel("inclination θ (deg)")
     ax.set_ylabel("filling height H (d)")
     ax.set_title(f"{law}, λ = {lam:g}")
-    ax.legend(fontsize=7, loc="upper right")
+    # below the axes: inside, the legend hid the thick runs
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
 savefig(fig, "flow_state_map")
 rows = []
 for law in laws:
