@@ -2,8 +2,8 @@
 
 Fast tests: the uniform-layer ODE (steady state = the flow rule of Eq. 47, linearised e-folding
 time, Coulomb arrest time), the shallow-layer solver (mass conserved to round-off, steady
-uniform flow stays steady, uniform limit = the ODE, Coulomb dam break against Mangeney et al.
-2000 and tilupy's implementation of it), the segregation model (conservation, steady state =
+uniform flow stays steady, uniform limit = the ODE, small waves = linearised Eq. 34, Coulomb
+dam break against Mangeney et al. 2000 and tilupy's implementation of it), the segregation model (conservation, steady state =
 T-eq. 28 / the asymmetric profile, the diffusive decay rate pi^2 D/h^2), and library-driven
 closures (the same numbers as the library's evaluators, status refusals, ensemble spread).
 """
@@ -103,6 +103,55 @@ def test_uniform_limit_is_the_ode():
     ode = uniform_layer(c, h, u0, 100.0, n_out=101)
     fv = shallow_layer(c, np.arange(8) + 0.5, h, u0, t_end=100.0, n_out=101)
     assert np.max(np.abs(fv.u_bar.values - ode.u_bar.values[:, None])) < 1e-7
+
+
+def _linear_modes(c, h, u, alpha, k):
+    """Linearised Eq. (34) about the steady uniform state (h, u), constant alpha, wavenumber
+    k: the two complex frequencies omega of exp(i (k x - omega t)), the kinematic speed
+    -S_h/S_q = dq/dh and the gravity-wave characteristic alpha u + c."""
+    def source(hh, qq):
+        return hh * float(c.acceleration(hh, qq / hh))
+    q, e = h * u, 1e-6
+    s_h = (source(h + e, q) - source(h - e, q)) / (2 * e)
+    s_q = (source(h, q + e) - source(h, q - e)) / (2 * e)
+    f_h, f_q = c.K * c.g_cos * h - alpha * u * u, 2 * alpha * u
+    omega = np.roots([1.0, -f_q * k - 1j * s_q, -f_h * k * k - 1j * s_h * k])
+    c_plus = alpha * u + math.sqrt(alpha * (alpha - 1) * u * u + c.K * c.g_cos * h)
+    return omega, -s_h / s_q, c_plus
+
+
+@pytest.mark.parametrize("wavelength, regime", [(100.0, "gravity"), (4000.0, "kinematic")])
+def test_small_wave_follows_the_linearised_eq34(wavelength, regime):
+    """A small Fourier mode on a steady uniform layer (h = 8, Eq. 50 of Table 1 at 25 deg)
+    travels and decays as linearised Eq. (34) says: phase speed within 1 %, decay rate within
+    5 % (100 cells a wavelength).  The least-damped mode is a gravity wave (alpha u + c,
+    within 2 %) at wavelength 100, the long chute's length (k tau (alpha u + c - dq/dh) = 1.39
+    with the relaxation time tau = 14.3), and the kinematic wave dq/dh (within 1 %) at
+    wavelength 4000 (k tau (alpha u + c - dq/dh) = 0.035)."""
+    alpha = 1.3
+    c = eq50(25.0, K=1.02, alpha=alpha)
+    h = 8.0
+    u = c.steady_froude(h) * math.sqrt(c.g_cos * h)
+    k = 2 * math.pi / wavelength
+    omega, c_kin, c_plus = _linear_modes(c, h, u, alpha, k)
+    w = omega[np.argmax(omega.imag)]                      # the least-damped mode
+    speed, rate = w.real / k, -w.imag
+    x = (np.arange(100) + 0.5) * wavelength / 100
+    eps = 1e-3 * h
+    h0 = h + eps * np.cos(k * x)
+    q0 = h * u + eps * np.real(w / k * np.exp(1j * k * x))   # its eigenvector
+    t_end = 0.5 * wavelength / speed
+    res = shallow_layer(c, x, h0, q0 / h0, t_end, n_out=2)
+    ratio = np.sum((res.h.values[1] - h) * np.exp(-1j * k * x)) / \
+        np.sum((res.h.values[0] - h) * np.exp(-1j * k * x))
+    phase = -np.angle(ratio)
+    phase += 2 * math.pi * round((w.real * t_end - phase) / (2 * math.pi))
+    assert phase / k / t_end == pytest.approx(speed, rel=1e-2)
+    assert -math.log(abs(ratio)) / t_end == pytest.approx(rate, rel=5e-2)
+    if regime == "gravity":
+        assert speed == pytest.approx(c_plus, rel=2e-2)
+    else:
+        assert speed == pytest.approx(c_kin, rel=1e-2)
 
 
 @pytest.mark.parametrize("theta, delta", [(30.0, 20.0), (35.0, 25.0)])
