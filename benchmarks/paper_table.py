@@ -31,13 +31,9 @@ from pathlib import Path
 
 import json
 
-import numpy as np
 import pandas as pd
 
-from granflow.fitting.flow_rule import froude_eq47
-from granflow.fitting.shape_factor import alpha_eq54
-from granflow.fitting.hstop import hstop_eq45
-from granflow.reference import paper_fit_error, paper_value
+from granflow.reference import paper_fit_error, paper_law_errors, paper_value
 
 #: closure kinds whose parameters the papers give (hstop_eq38 has no paper value)
 KINDS = ("hstop", "flow_rule", "alpha", "density", "stress_ratio", "Ps_law")
@@ -105,39 +101,8 @@ def fit_error_rows(table: pd.DataFrame) -> list[dict]:
 
 def paper_law_rows(fits: list[dict], runs: pd.DataFrame) -> list[dict]:
     """The paper's flow rule (Eq. 47) and shape factor (Table 2) on the runs each closure of
-    ``fits`` (``fits.json``) used, from the campaign table ``runs``: Eq. (49) error of
-    run - paper law, against the paper's fit error."""
-    by_run = runs.set_index("run")
-    hs1 = {k: paper_value("hstop", k, 1.0) for k in ("delta1", "delta2", "A")}
-    rows = []
-    for f in fits:
-        kind, lam = f.get("kind"), f.get("coords", {}).get("lam")
-        used = [r for r in f.get("runs_used") or [] if r in by_run.index]
-        if kind not in ("flow_rule", "alpha") or lam is None or len(used) < 2:
-            continue
-        ref = paper_fit_error(kind, lam)
-        if not math.isfinite(ref):
-            continue
-        t = by_run.loc[used]
-        h, theta = t["h"].to_numpy(float), t["theta"].to_numpy(float)
-        if kind == "flow_rule":
-            beta, gamma = (paper_value("flow_rule", p, lam) for p in ("beta", "gamma"))
-            law = froude_eq47(h, theta, beta, gamma, **hs1)
-            y = t["F"].to_numpy(float)
-        else:
-            y = t["alpha"].to_numpy(float)
-            const = paper_value("alpha", "alpha_constant", lam)
-            if math.isfinite(const):
-                law = np.full(y.shape, const)
-            else:
-                law = alpha_eq54(h, hstop_eq45(theta, **hs1), paper_value("alpha", "d_lambda", lam))
-        res = y - law
-        err = float(np.sqrt(np.sum(res ** 2) / (res.size - 1)))
-        rows.append({"closure": kind, "lambda": float(lam), "n": len(used), "error": err,
-                     "paper": ref, "ratio": err / ref,
-                     "worst": float(np.max(np.abs(res / law))),
-                     "mean": float(np.mean(res / law))})
-    return rows
+    ``fits`` (``fits.json``) used: :func:`granflow.reference.paper_law_errors`."""
+    return paper_law_errors(fits, runs)
 
 
 def print_paper_rows(rows, closure: bool = True):

@@ -632,6 +632,15 @@ if len(cmp_paper):
                      "where that is looser; meaningful only at the paper's species and "
                      "protocol -- see the reductions above):"))
     display(cmp_paper)
+from granflow.reference import paper_law_errors
+
+law_rows = pd.DataFrame(paper_law_errors(fits, table) if "run" in table else [])
+if len(law_rows):
+    display(Markdown("**The paper's own law on this campaign's runs** (Eq. 47 with Table 1, "
+                     "Table 2's alpha; the runs each closure used): its Eq. (49) error against "
+                     "the paper's fit error.  A ratio near 1 says the law describes these runs as "
+                     "well as it described the paper's, even where single parameters differ:"))
+    display(law_rows)
 
 # %% [markdown]
 # ## Continuum consumers: the closures in use (granflow.continuum)

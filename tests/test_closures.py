@@ -305,3 +305,7 @@ def test_paper_reference_values_and_comparison():
     assert rows["d0"]["agrees"] is False  # 8 off, stderr 1.4, 5 % = 6.6
     assert rows["d1"]["agrees"] is True   # 0.4 off, 2 stderr = 0.44
     assert rows["d1"]["z"] == pytest.approx((21.9 - 21.5) / 0.219)
+    # an unidentified parameter agrees with nothing, however close (its stderr measures nothing)
+    g = f.replace(param_status={"d0": "identified", "d1": "unidentified"})
+    rows = {r["parameter"]: r for r in compare_with_paper([g])}
+    assert rows["d1"]["agrees"] is False and rows["d1"]["parameter_status"] == "unidentified"

@@ -88,10 +88,68 @@ def compare_with_paper(fits, n_sigma: float = 2.0, rel: float = 0.05) -> list[di
             se = r.stderr.get(p, math.nan)
             z = (v - ref) / se if math.isfinite(se) and se > 0 else math.nan
             tol = max(n_sigma * se if math.isfinite(se) else 0.0, rel * abs(ref))
+            status = r.param_status.get(p, "")
             rows.append({"kind": r.kind, "lambda": lam, "parameter": p, "value": v,
                          "stderr": se, "paper": ref, "z": z,
-                         "agrees": bool(math.isfinite(v) and abs(v - ref) <= tol),
-                         "status": r.state, "parameter_status": r.param_status.get(p, "")})
+                         # a parameter the data do not identify agrees with nothing (its
+                         # stderr is no measure of it, however close its value)
+                         "agrees": bool(math.isfinite(v) and abs(v - ref) <= tol
+                                        and status in ("identified", "")),
+                         "status": r.state, "parameter_status": status})
+    return rows
+
+
+def paper_law_errors(fits, runs) -> list[dict]:
+    """The paper's own law on a campaign's runs: for the flow rule (Eq. 47 with Table 1's beta,
+    gamma at the closure's lambda and Table 1's hstop(theta; 1)) and the shape factor (Table 2:
+    Eq. 54 with d_lambda, or the constant), the Eq. (49) error of run - paper law over the runs
+    each closure of ``fits`` used, against the paper's own fit error (:data:`PAPER_FIT_ERROR`).
+
+    Where the runs span too little of the law's input to separate its parameters (beta and
+    gamma from a few angles), single parameters can disagree while the law describes the runs
+    as well as it described the paper's (ratio <= 1).  ``fits``: FitResults or their dicts
+    (``fits.json``); ``runs``: the campaign table (DataFrame with run, theta, h, F, alpha).
+    Returns one dict per closure: closure, lambda, n, error, paper, ratio, mean and worst
+    relative deviation."""
+    import numpy as np
+
+    from .fitting.flow_rule import froude_eq47
+    from .fitting.hstop import hstop_eq45
+    from .fitting.shape_factor import alpha_eq54
+
+    by_run = runs.set_index("run")
+    hs1 = {k: paper_value("hstop", k, 1.0) for k in ("delta1", "delta2", "A")}
+    rows = []
+    for f in fits:
+        if not isinstance(f, dict):
+            f = {"kind": f.kind, "coords": f.coords, "runs_used": list(f.runs_used)}
+        kind, lam = f.get("kind"), (f.get("coords") or {}).get("lam")
+        used = [r for r in f.get("runs_used") or [] if r in by_run.index]
+        if kind not in ("flow_rule", "alpha") or lam is None or len(used) < 2:
+            continue
+        ref = paper_fit_error(kind, lam)
+        if not math.isfinite(ref):
+            continue
+        t = by_run.loc[used]
+        h, theta = t["h"].to_numpy(float), t["theta"].to_numpy(float)
+        if kind == "flow_rule":
+            beta, gamma = (paper_value("flow_rule", p, lam) for p in ("beta", "gamma"))
+            law = froude_eq47(h, theta, beta, gamma, **hs1)
+            y = t["F"].to_numpy(float)
+        else:
+            y = t["alpha"].to_numpy(float)
+            const = paper_value("alpha", "alpha_constant", lam)
+            if math.isfinite(const):
+                law = np.full(y.shape, const)
+            else:
+                law = alpha_eq54(h, hstop_eq45(theta, **hs1),
+                                 paper_value("alpha", "d_lambda", lam))
+        res = y - law
+        err = float(np.sqrt(np.sum(res ** 2) / (res.size - 1)))
+        rows.append({"closure": kind, "lambda": float(lam), "n": len(used), "error": err,
+                     "paper": ref, "ratio": err / ref,
+                     "worst": float(np.max(np.abs(res / law))),
+                     "mean": float(np.mean(res / law))})
     return rows
 
 
