@@ -25,11 +25,10 @@ the law, not of each parameter, and is printed as such.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import re
 from pathlib import Path
-
-import json
 
 import pandas as pd
 
@@ -99,12 +98,6 @@ def fit_error_rows(table: pd.DataFrame) -> list[dict]:
     return rows
 
 
-def paper_law_rows(fits: list[dict], runs: pd.DataFrame) -> list[dict]:
-    """The paper's flow rule (Eq. 47) and shape factor (Table 2) on the runs each closure of
-    ``fits`` (``fits.json``) used: :func:`granflow.reference.paper_law_errors`."""
-    return paper_law_errors(fits, runs)
-
-
 def print_paper_rows(rows, closure: bool = True):
     """The rows of :func:`paper_rows` as a Markdown table (``closure``: with that column)."""
     head = "| closure " if closure else ""
@@ -140,7 +133,7 @@ def main():
                   f"{r['ratio']:.2f} | {r['n_points']} | {r['status']} |")
     fits_file, runs_file = args.results / "fits.json", args.results / "campaign_table.csv"
     if fits_file.exists() and runs_file.exists():
-        law = paper_law_rows(json.loads(fits_file.read_text()), pd.read_csv(runs_file))
+        law = paper_law_errors(json.loads(fits_file.read_text()), pd.read_csv(runs_file))
         if law:
             print("\nThe paper's law on this campaign's runs (the runs each closure used):")
             print("| closure | lambda | runs | Eq. 49 error of run - paper law | paper's fit error "

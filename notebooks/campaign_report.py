@@ -45,6 +45,8 @@ from granflow import units as U
 from granflow.campaign.collect import read_table
 from granflow.campaign.fits import closure_rows, read_fits
 from granflow.closures import open_library
+from granflow.reference import compare_with_paper, paper_law_errors
+from granflow.reference import paper_value as _paper_value
 from granflow.fitting import (Ps_teq29, alpha_eq54, density_eq52, hstop_eq38, hstop_eq45,
                               mu_eq50, phi_teq28, stress_ratio_eq53)
 
@@ -226,8 +228,7 @@ for ax, (law, lam) in zip(axes[0], panels):
         ax.plot(th, np.where(np.isfinite(h) & (h > 0), h, np.nan), "k-.", lw=0.8,
                 label=f"Eq. (38) (comparison) [{r38.state}]")
     # the paper's curve at this lambda (Table 1: its species, linear law), for comparison
-    from granflow.reference import paper_value as _pv
-    paper = {k: _pv("hstop", k, lam) for k in ("delta1", "delta2", "A")}
+    paper = {k: _paper_value("hstop", k, lam) for k in ("delta1", "delta2", "A")}
     if law == "linear" and all(np.isfinite(v) for v in paper.values()):
         hp = hstop_eq45(th, **paper)
         ax.plot(th, np.where(np.isfinite(hp) & (hp > 0), hp, np.nan), color="tab:red", ls=":",
@@ -610,8 +611,6 @@ display(pd.DataFrame(rep_rows) if any(r["replicate groups"] for r in rep_rows)
 # campaign's reductions (above) shift them.
 
 # %%
-from granflow.reference import compare_with_paper, paper_value as _paper_value
-
 ct = closure_rows(fits)
 ct = ct[ct["kind"] != "segregation"].copy()
 
@@ -632,8 +631,6 @@ if len(cmp_paper):
                      "where that is looser; meaningful only at the paper's species and "
                      "protocol -- see the reductions above):"))
     display(cmp_paper)
-from granflow.reference import paper_law_errors
-
 law_rows = pd.DataFrame(paper_law_errors(fits, table) if "run" in table else [])
 if len(law_rows):
     display(Markdown("**The paper's own law on this campaign's runs** (Eq. 47 with Table 1, "

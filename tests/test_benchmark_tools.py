@@ -105,8 +105,8 @@ def test_paper_law_on_the_runs_is_exact_on_runs_made_from_it():
     """Runs whose F is Eq. (47) with Table 1 (lambda = 1/2 beta, gamma; lambda = 1 hstop) and
     whose alpha is Table 2's constant give error 0 against the paper's law; F 10 % above it gives
     a mean deviation of +10 % and the Eq. (49) error of the 10 % offsets."""
-    pt = _load("paper_table")
     from granflow.fitting.flow_rule import froude_eq47
+    from granflow.reference import paper_law_errors
     theta = np.array([26.0, 27.0, 28.0, 26.0])
     h = np.array([19.4, 19.8, 20.7, 28.8])
     F = froude_eq47(h, theta, 0.300, -0.236, 17.708, 32.780, 3.355)
@@ -115,12 +115,12 @@ def test_paper_law_on_the_runs_is_exact_on_runs_made_from_it():
     fits = [{"kind": "flow_rule", "coords": {"lam": 0.5}, "runs_used": list(runs.run)},
             {"kind": "alpha", "coords": {"lam": 0.5}, "runs_used": list(runs.run)},
             {"kind": "density", "coords": {"lam": 0.5}, "runs_used": list(runs.run)}]
-    rows = {r["closure"]: r for r in pt.paper_law_rows(fits, runs)}
+    rows = {r["closure"]: r for r in paper_law_errors(fits, runs)}
     assert set(rows) == {"flow_rule", "alpha"}
     assert rows["flow_rule"]["error"] == pytest.approx(0.0, abs=1e-12)
     assert rows["alpha"]["error"] == pytest.approx(0.0, abs=1e-12)
     assert rows["flow_rule"]["paper"] == 0.229
-    rows = {r["closure"]: r for r in pt.paper_law_rows(fits, runs.assign(F=1.1 * F))}
+    rows = {r["closure"]: r for r in paper_law_errors(fits, runs.assign(F=1.1 * F))}
     assert rows["flow_rule"]["mean"] == pytest.approx(0.10)
     assert rows["flow_rule"]["error"] == pytest.approx(
         math.sqrt(np.sum((0.1 * F) ** 2) / 3))
