@@ -94,6 +94,40 @@ def test_parameter_traded_against_an_active_bound_is_not_identified():
     assert r1.param_status["A"] == "identified"
 
 
+def test_least_squares_forms_test_their_active_bounds_too():
+    """The same test in every form fit_forms fits: a line whose data want a slope above the
+    slope's upper bound puts the slope at the bound, and the intercept compensates.  Its
+    stderr passes (64 runs: the Birge-inflated covariance is still small), so only a refit
+    with the bound moved shows that the intercept follows the bound; without an active bound
+    nothing is conditional.  (With the covariance's stderrs the test fires when the move,
+    a quarter of the bound interval, exceeds the bound parameter's own stderr: with 8 runs
+    here b's is 0.41 and a moves by half its stderr, not flagged.)"""
+    from granflow.fitting.forms import Form, fit_forms, moved_bounds
+
+    x = np.linspace(0.0, 1.0, 64)
+    y = 1.0 + 2.0 * x + 0.01 * np.cos(7.0 * np.arange(64))
+    line = Form("line", lambda t, a, b: a + b * t, ("a", "b"), lambda t, yy: [0.0, 0.5], "",
+                bounds={"b": (0.0, 1.0)})
+    r = fit_forms("test", "", ("a", "b"), [line], x, y, sigma=0.01 * np.ones(64),
+                  heldout=False)
+    assert r.params["b"] == pytest.approx(1.0)
+    assert r.param_status["b"] == "unidentified" and "bound" in r.param_reason["b"]
+    assert r.stderr["a"] < 0.5 * abs(r.params["a"])       # passes the stderr test ...
+    assert r.param_status["a"] == "unidentified"          # ... but follows b's bound
+    assert "determined by the bound of b" in r.param_reason["a"]
+    assert "[0, 0.75]" in r.param_reason["a"]             # moved by a quarter of [0, 1]
+    # the same data with a bound that is not active: both identified, nothing conditional
+    free = Form("line", line.model, ("a", "b"), line.p0, "", bounds={"b": (0.0, 10.0)})
+    r2 = fit_forms("test", "", ("a", "b"), [free], x, y, sigma=0.01 * np.ones(64),
+                   heldout=False)
+    assert "bound_conditional" not in r2.extra
+    assert set(r2.param_status.values()) == {"identified"}
+    assert r2.params["b"] == pytest.approx(2.0, abs=0.02)
+    # a bound with no finite partner moves by half the larger of |bound|, |value|, 1
+    assert moved_bounds(0.0, 0.0, math.inf) == (0.5, math.inf)
+    assert moved_bounds(1e4, 0.0, 1e4) == (0.0, 7500.0)
+
+
 def test_heldout_limit_is_three_for_one_run_and_bonferroni_for_many():
     assert heldout_limit(1) == pytest.approx(3.0, abs=1e-9)
     # the largest of n standard normals exceeds the limit with probability 0.27 %
@@ -347,3 +381,32 @@ def test_unidentified_closure_is_refused_unless_asked(tmp_path):
 
     rows = closure_rows([fit])
     assert set(rows["status"]) == {"unidentified"} and "parameter_reason" in rows
+
+
+def test_mu_I_is_assessed_and_a_library_never_trusts_an_unassessed_fit(tmp_path):
+    """fit_mu_I went through curve_fit alone and was 'ok' whenever it converged; a library
+    stored any fit without per-parameter statuses as 'identified'.  Points with I << I0
+    (seed 001 Table 1: I0 = 0.279) show only mu_s and the initial slope (mu_d - mu_s)/I0, so
+    mu_d and I0 must come out unidentified; over I = 0.01 ... 2 all three are identified.  A
+    hand-made FitResult without statuses is tested when the library is written."""
+    from granflow.fitting import FitResult, fit_mu_I, mu_of_I
+
+    true = dict(mu_s=0.382, mu_d=0.682, I0=0.279)
+    rng = np.random.default_rng(213)
+    I_low = np.linspace(1e-3, 0.01, 40)
+    mu_low = mu_of_I(I_low, **true) + rng.normal(0.0, 0.002, I_low.size)
+    low = fit_mu_I(I_low, mu_low, contact_law="linear")
+    assert low.status == "unidentified" and not low.ok
+    assert low.param_status["mu_s"] == "identified"
+    assert low.param_status["mu_d"] == low.param_status["I0"] == "unidentified"
+    I = np.exp(rng.uniform(np.log(0.01), np.log(2.0), 80))
+    full = fit_mu_I(I, mu_of_I(I, **true) + rng.normal(0.0, 0.005, I.size), contact_law="linear")
+    assert full.status == "ok" and set(full.param_status.values()) == {"identified"}
+    # an unassessed result (converged, ok=True, no statuses) with an unusable stderr
+    raw = FitResult(kind="mu_I", equation="seed 001 Eq. (2.13)", params=dict(true),
+                    stderr={"mu_s": 0.001, "mu_d": float("nan"), "I0": 0.01}, error=0.01,
+                    n_points=40, ok=True, message="hand-made", coords={"contact_law": "linear"})
+    lib = gc.open_library(gc.write_library(tmp_path, "raw", [raw]))
+    st = gc.closure_status(lib)
+    st = st.set_index("parameter")["parameter_status"]
+    assert st["mu_d"] == "unidentified" and st["mu_s"] == "identified"

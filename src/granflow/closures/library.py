@@ -32,7 +32,7 @@ from .. import units as U
 from ..fitting.result import FitResult
 from ..fitting.table import COLUMN_ATTRS, STRING_COLUMNS, validate_campaign_table
 from ..provenance import atomic_to_netcdf, provenance_attrs
-from ..fitting.identify import CRITERION
+from ..fitting.identify import CRITERION, assess
 from .schema import (CAMPAIGN_PREFIX, CONTACT_LAW_DIM, COORD_TO_DIM, KINDS, LAMBDA_DIM,
                      RUN_DIM, SAMPLE_DIM, SCHEMA_NAME, SCHEMA_VERSION, SIGMA_DIM)
 
@@ -161,6 +161,10 @@ def _closure_variables(results, default_contact_law):
             if idx in seen:
                 raise ValueError(f"two {kind} fits for the same coordinates {coords}")
             seen.add(idx)
+            if not r.param_status and r.state != "failed":
+                # a fit made without the identifiability tests (a user's own FitResult): test
+                # it here rather than store its parameters as identified because it converged
+                r = assess(r)
             unknown = set(r.params) - set(spec.params)
             if unknown:
                 raise ValueError(f"{kind} fit has unexpected parameters {sorted(unknown)}")
@@ -175,7 +179,7 @@ def _closure_variables(results, default_contact_law):
             form[idx] = r.form
             selection[idx] = r.selection
             for p in spec.params:
-                pstat[p][idx] = r.param_status.get(p, "identified" if r.ok else "unidentified")
+                pstat[p][idx] = r.param_status.get(p, "unidentified")
                 preason[p][idx] = r.param_reason.get(p, "")
             d = r.diagnostics
             diag["heldout_max_abs_z"][idx] = d.get("heldout_max_abs_z", np.nan)

@@ -45,6 +45,68 @@ class Form:
     fixed: dict = field(default_factory=dict)
     min_points: int | None = None
     extra: Callable | None = None
+    #: ``{param: (lo, hi)}``: the bounds a refit uses when ``param`` sits at one of its
+    #: ``bounds`` (:func:`bound_conditional`); default :func:`moved_bounds`
+    moved: dict = field(default_factory=dict)
+
+
+#: fraction of a finite bound interval by which :func:`moved_bounds` moves an active bound inwards
+MOVE_FRACTION = 0.25
+
+
+def moved_bounds(value: float, lo: float, hi: float) -> tuple[float, float]:
+    """The bounds (lo, hi) with the one ``value`` sits at moved inwards: by
+    :data:`MOVE_FRACTION` of the interval when both are finite, else by half of
+    ``max(|bound|, |value|, 1)``."""
+    at_lo = abs(value - lo) <= abs(value - hi)
+    if math.isfinite(lo) and math.isfinite(hi):
+        step = MOVE_FRACTION * (hi - lo)
+    else:
+        b = lo if at_lo else hi
+        step = 0.5 * max(abs(b), abs(value), 1.0)
+    return (lo + step, hi) if at_lo else (lo, hi - step)
+
+
+def bound_conditional(form: Form, lsq, x, y, sigma, stderr: dict) -> dict:
+    """Free parameters of a fitted form that only an active optimiser bound determines:
+    ``{param: reason}`` (criterion 5 of :mod:`.identify`).
+
+    A parameter at a bound is not a result, and neither is one the fit trades against it (the
+    flat lambda = 1/2 hstop brackets put delta2 - delta1 at its bound and A followed it,
+    :func:`granflow.fitting.hstop.bound_conditional`).  The form is refitted with every active
+    bound moved inwards (``form.moved`` or :func:`moved_bounds`); a parameter not at a bound
+    that moves by more than its stderr (``stderr``: the one the fit reports) follows the bound.
+    """
+    from .identify import at_bound
+
+    active = [p for p in form.free if p in form.bounds
+              and at_bound(lsq.params[p], *form.bounds[p])]
+    others = [p for p in form.free if p not in active]
+    if not active or not others:
+        return {}
+    bounds = dict(form.bounds)
+    moved = []
+    for p in active:
+        lo, hi = form.bounds[p]
+        bounds[p] = tuple(form.moved.get(p, moved_bounds(lsq.params[p], lo, hi)))
+        moved.append(f"{p} in [{lo:.6g}, {hi:.6g}] -> [{bounds[p][0]:.6g}, {bounds[p][1]:.6g}]")
+    start = [min(max(lsq.params[p], bounds.get(p, (-np.inf, np.inf))[0]),
+                 bounds.get(p, (-np.inf, np.inf))[1]) for p in form.free]
+    try:
+        new = least_squares(form.model, x, y, start, form.free, sigma=sigma, bounds=bounds)
+    except (RuntimeError, ValueError, optimize.OptimizeWarning, FloatingPointError) as exc:
+        return {p: f"conditional on {', '.join(active)} at an optimiser bound (a refit with the "
+                   f"bound moved failed: {exc})" for p in others}
+    out = {}
+    for p in others:
+        shift = abs(new.params[p] - lsq.params[p])
+        se = stderr.get(p, math.nan)
+        if not (math.isfinite(se) and se > 0) or shift > se:
+            out[p] = (f"determined by the bound of {', '.join(active)}: moving it "
+                      f"({'; '.join(moved)}) moves {p} from {lsq.params[p]:.4g} to "
+                      f"{new.params[p]:.4g}, "
+                      f"{shift / se if math.isfinite(se) and se > 0 else math.inf:.1f} stderr")
+    return out
 
 
 def _result_from(kind, equation, all_params, form: Form, lsq, x, y, n, coords, valid_range,
@@ -159,6 +221,9 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
                       "covariance scaled by the residual variance; ensemble drawn from it")
             res = _result_from(kind, equation, all_params, form, lsq, x, y, n, coords,
                                valid_range or {}, extra or {}, error_measure, ens, method)
+        cond = bound_conditional(form, lsq, x, y, s, res.stderr)
+        if cond:
+            res = res.replace(extra={**res.extra, "bound_conditional": cond})
         fixed = {p: reason for p, (_, reason) in form.fixed.items()}
         res = assess(res, form="full" if k == 0 else form.name, free=list(form.free),
                      fixed=fixed)

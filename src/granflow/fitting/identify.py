@@ -20,8 +20,10 @@ before it is stored (issue 13).  :func:`assess` marks each parameter of a :class
      data fix only a combination of the two (the ridge is 2000 times longer than it is wide)
      and each one alone is arbitrary along it;
   5. it does not follow another parameter's active bound (``extra['bound_conditional']``, set
-     by fits that can test it, :func:`granflow.fitting.hstop.bound_conditional`): a refit with
-     that bound moved does not move it by more than its stderr.  (A bootstrap whose every
+     by the hstop fit, :func:`granflow.fitting.hstop.bound_conditional`, and by every form
+     :func:`granflow.fitting.forms.fit_forms` fits, :func:`granflow.fitting.forms.
+     bound_conditional`): a refit with that bound moved does not move it by more than its
+     stderr.  (A bootstrap whose every
      refit sits at the same bound reports a small stderr for the parameter traded against
      it.)
 
