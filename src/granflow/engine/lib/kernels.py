@@ -940,16 +940,27 @@ def particle_pass(
     and the largest squared drift speed |v|^2 (``blk_disp``; inf for a NaN velocity;
     ``blk_disp_near`` is set to 0).  ``pos_ref`` and ``near_ref`` are not read here: see
     :func:`displacement_maxima`.
+
+    The parts of a particle depend on that particle alone, so the step's parts (``do_sum``,
+    ``do_kick``, ``do_begin``) run in one loop over the particles, each particle's force,
+    torque and velocities read once into registers: the same operations in the same order per
+    particle as one loop per part, the same numbers, and the per-block reductions still in
+    particle order (issue 15: one loop per part re-read and re-wrote every particle's rows in
+    each loop, ~48 us per step on the benchmark chute; fused ~33 us).
     """
     n = pos.shape[0]
     nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
     h = 0.5 * dt
+    g0 = gvec[0]
+    g1 = gvec[1]
+    g2 = gvec[2]
+    integrate = do_kick or do_begin
     for bu in prange(nblock):
         b = np.int64(bu)
         # unsigned particle indices: no negative-index handling in the loops
         i0 = np.uint64(b * PARTICLE_BLOCK)
         i1 = np.uint64(min(b * PARTICLE_BLOCK + PARTICLE_BLOCK, n))
-        # (simple loops, one per part: the integration loops vectorise)
+        # initial forces of a run (compute_forces): wall contacts, force reset
         if do_wall and use_wall:
             for i in range(i0, i1):
                 _wall_contact(i, pos, vel, omega, vel, omega, radius, inv_mass, ptype, wall_type,
@@ -968,96 +979,141 @@ def particle_pass(
         ov = 0.0
         erel_wall = 0.0
         bad = False
-        if do_sum:
-            for i in range(i0, i1):
+        disp = 0.0
+        if not (do_sum or integrate):
+            blk_overlap[b] = ov
+            blk_erel[b] = erel_wall
+            blk_bad[b] = bad
+            blk_disp[b] = disp
+            blk_disp_near[b] = 0.0
+            continue
+        # the step's parts, fused: one visit per particle
+        for i in range(i0, i1):
+            f0 = force[i, 0]
+            f1 = force[i, 1]
+            f2 = force[i, 2]
+            t0 = torque[i, 0]
+            t1 = torque[i, 1]
+            t2 = torque[i, 2]
+            if do_sum:
+                # the wall row onto the pairs' sum (force, torque are written back: they are
+                # the step's forces if no next step begins here)
                 if use_wall:
                     st = wall_state[i]
                     if st == CONTACT:
-                        for k in range(3):
-                            force[i, k] += wall_rows[i, k]
-                            torque[i, k] += wall_rows[i, 3 + k]
+                        f0 += wall_rows[i, 0]
+                        f1 += wall_rows[i, 1]
+                        f2 += wall_rows[i, 2]
+                        t0 += wall_rows[i, 3]
+                        t1 += wall_rows[i, 4]
+                        t2 += wall_rows[i, 5]
+                        force[i, 0] = f0
+                        force[i, 1] = f1
+                        force[i, 2] = f2
+                        torque[i, 0] = t0
+                        torque[i, 1] = t1
+                        torque[i, 2] = t2
                         if wall_rows[i, 10] > ov:
                             ov = wall_rows[i, 10]
                     elif st == OPENED:
                         erel_wall += wall_rows[i, 9]
-                if not np.isfinite(force[i, 0] + force[i, 1] + force[i, 2] + torque[i, 0]
-                                   + torque[i, 1] + torque[i, 2]):
+                if not np.isfinite(f0 + f1 + f2 + t0 + t1 + t2):
                     bad = True
-        if do_kick and do_begin:
-            # closing half kick of this step and opening half kick of the next (two roundings)
-            for i in range(i0, i1):
-                im = inv_mass[i]
-                ii = inv_inertia[i]
-                if im != 0.0:
-                    for k in range(3):
-                        dv = h * force[i, k] * im
-                        dw = h * torque[i, k] * ii
-                        vel[i, k] = (vel[i, k] + dv) + dv
-                        omega[i, k] = (omega[i, k] + dw) + dw
-        elif do_kick or do_begin:
-            for i in range(i0, i1):
-                im = inv_mass[i]
-                ii = inv_inertia[i]
-                if im != 0.0:
-                    for k in range(3):
-                        vel[i, k] += h * force[i, k] * im
-                        omega[i, k] += h * torque[i, k] * ii
-        disp = 0.0
-        disp_near = 0.0
-        if do_begin:
-            for i in range(i0, i1):
-                if inv_mass[i] != 0.0:
-                    x = pos[i, 0] + dt * vel[i, 0]
-                    y = pos[i, 1] + dt * vel[i, 1]
-                    # periodic wrap; the division only for the rare particle that crossed a face
-                    if not (0.0 <= x < Lx):
-                        x -= Lx * np.floor(x / Lx)
-                        if x >= Lx:
-                            x = 0.0
-                    if not (0.0 <= y < Ly):
-                        y -= Ly * np.floor(y / Ly)
-                        if y >= Ly:
-                            y = 0.0
-                    pos[i, 0] = x
-                    pos[i, 1] = y
-                    pos[i, 2] += dt * vel[i, 2]
+            if not integrate:
+                continue
+            im = inv_mass[i]
+            ii = inv_inertia[i]
+            v0 = vel[i, 0]
+            v1 = vel[i, 1]
+            v2 = vel[i, 2]
+            w0 = omega[i, 0]
+            w1 = omega[i, 1]
+            w2 = omega[i, 2]
+            if im != 0.0:
+                if do_kick and do_begin:
+                    # closing half kick of this step and opening half kick of the next (two
+                    # roundings)
+                    dv0 = h * f0 * im
+                    dv1 = h * f1 * im
+                    dv2 = h * f2 * im
+                    dw0 = h * t0 * ii
+                    dw1 = h * t1 * ii
+                    dw2 = h * t2 * ii
+                    v0 = (v0 + dv0) + dv0
+                    v1 = (v1 + dv1) + dv1
+                    v2 = (v2 + dv2) + dv2
+                    w0 = (w0 + dw0) + dw0
+                    w1 = (w1 + dw1) + dw1
+                    w2 = (w2 + dw2) + dw2
+                else:
+                    v0 += h * f0 * im
+                    v1 += h * f1 * im
+                    v2 += h * f2 * im
+                    w0 += h * t0 * ii
+                    w1 += h * t1 * ii
+                    w2 += h * t2 * ii
+                vel[i, 0] = v0
+                vel[i, 1] = v1
+                vel[i, 2] = v2
+                omega[i, 0] = w0
+                omega[i, 1] = w1
+                omega[i, 2] = w2
+            if not do_begin:
+                continue
+            # drift
+            if im != 0.0:
+                x = pos[i, 0] + dt * v0
+                y = pos[i, 1] + dt * v1
+                # periodic wrap; the division only for the rare particle that crossed a face
+                if not (0.0 <= x < Lx):
+                    x -= Lx * np.floor(x / Lx)
+                    if x >= Lx:
+                        x = 0.0
+                if not (0.0 <= y < Ly):
+                    y -= Ly * np.floor(y / Ly)
+                    if y >= Ly:
+                        y = 0.0
+                pos[i, 0] = x
+                pos[i, 1] = y
+                pos[i, 2] += dt * v2
             # second-order estimate of v(t + dt) from the half-step velocity and the old
             # force, for the velocity-dependent (damping) forces: restitution to O(dt^2)
-            for i in range(i0, i1):
-                im = inv_mass[i]
-                ii = inv_inertia[i]
-                for k in range(3):
-                    vel_p[i, k] = vel[i, k] + h * force[i, k] * im
-                    omega_p[i, k] = omega[i, k] + h * torque[i, k] * ii
+            vel_p[i, 0] = v0 + h * f0 * im
+            vel_p[i, 1] = v1 + h * f1 * im
+            vel_p[i, 2] = v2 + h * f2 * im
+            omega_p[i, 0] = w0 + h * t0 * ii
+            omega_p[i, 1] = w1 + h * t1 * ii
+            omega_p[i, 2] = w2 + h * t2 * ii
             # the pair pass adds the contacts onto gravity
-            for i in range(i0, i1):
-                if inv_mass[i] > 0.0:
-                    for k in range(3):
-                        force[i, k] = mass[i] * gvec[k]
-                else:
-                    for k in range(3):
-                        force[i, k] = 0.0
-                for k in range(3):
-                    torque[i, k] = 0.0
+            if im > 0.0:
+                m = mass[i]
+                force[i, 0] = m * g0
+                force[i, 1] = m * g1
+                force[i, 2] = m * g2
+            else:
+                force[i, 0] = 0.0
+                force[i, 1] = 0.0
+                force[i, 2] = 0.0
+            torque[i, 0] = 0.0
+            torque[i, 1] = 0.0
+            torque[i, 2] = 0.0
             if use_wall:
-                for i in range(i0, i1):
-                    _wall_contact(i, pos, vel_p, omega_p, vel, omega, radius, inv_mass, ptype,
-                                  wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
-                                  law_tab, coef, dt, True)
+                _wall_contact(i, pos, vel_p, omega_p, vel, omega, radius, inv_mass, ptype,
+                              wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
+                              coef, dt, True)
             # the largest squared drift speed of the block (inf for a NaN velocity): the caller
             # bounds the displacements since the lists' builds by sum dt max|v| and measures
             # them (displacement_maxima) only when a bound crosses its threshold
-            for i in range(i0, i1):
-                v2 = vel[i, 0] * vel[i, 0] + vel[i, 1] * vel[i, 1] + vel[i, 2] * vel[i, 2]
-                if v2 > disp:
-                    disp = v2
-                elif not v2 == v2:
-                    disp = np.inf
+            s2 = v0 * v0 + v1 * v1 + v2 * v2
+            if s2 > disp:
+                disp = s2
+            elif not s2 == s2:
+                disp = np.inf
         blk_overlap[b] = ov
         blk_erel[b] = erel_wall
         blk_bad[b] = bad
         blk_disp[b] = disp
-        blk_disp_near[b] = disp_near
+        blk_disp_near[b] = 0.0
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
