@@ -391,7 +391,13 @@ def _pair_contact(p, q, pos, vel, omega, vel_h, omega_h, radius, ptype, box, pi,
 # order as :func:`_contact_force`, with the same fast-math flags: the results are bitwise those
 # of the scalar path (the elastic energy is one expression in both, so that the multiply-add
 # fusion is the same; tests/test_engine_threads.py checks it).
-CHUNK = 128
+#: Contacts per chunk.  Each contact is computed on its own, so the chunk size changes no
+#: number, only the speed: measured on the benchmark chute at one thread (2026-11-26), pair pass
+#: 176-178 us per step with CHUNK = 128, 250 with 64 or 32, 150-151 with 256, 320, 384 or 512
+#: (why the smaller chunks cost so much more is not understood: with 256 most blocks of
+#: PAIR_BLOCK near pairs are one chunk, with 128 two or more).  256: the work row
+#: (NWORK x 259 doubles, 104 KB per thread) stays well inside the L2.
+CHUNK = 256
 CHUNK_STRIDE = CHUNK + 3   # not a power of two: the work rows do not share cache sets
 (W_DX, W_DY, W_DZ, W_RI, W_RJ, W_M, W_KN, W_GN, W_KT, W_GT, W_MU, W_VI, W_VJ, W_WI, W_WJ,
  W_DVH, W_WHI, W_WHJ, W_S) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 14, 17, 20, 23, 26, 29, 32)
