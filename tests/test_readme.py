@@ -98,6 +98,8 @@ README_COMMANDS = {
         (None, "benchmark peer, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_engine_vs_lammps.py":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
+    ".venv/bin/python benchmarks/bench_engine_vs_lammps.py --repeat 5":
+        (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_engine_scaling.py --lammps":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
 }
