@@ -481,6 +481,8 @@ savefig(fig, "segregation")
 # The same phi profile fitted with T-eq. (28) (flux Sr phi (1 - phi), one parameter Ps) and with
 # the asymmetric flux of seed 001 Eq. (2.9) (A phi (1 - phi)(1 - kappa phi), parameters Ps and
 # kappa): rms residuals and Gaussian AIC (lower is better; the extra parameter costs 2).
+# "kappa status" is the fit's own: "fixed" where the profile does not identify kappa (its best
+# value at the bound 0, no asymmetry), and the asymmetric row is then the symmetric fit again.
 # "segregated state" says whether the small-particle centre of mass had stopped drifting
 # (steady: the profile is averaged over the steady window; drifting: over the last window).
 
@@ -493,6 +495,7 @@ for item in sorted(seg_runs, key=lambda d: d["fit"]["coords"].get("sigma", 1)):
         "Ps (sym.)": ex.get("symmetric_Ps"), "rms (sym.)": ex.get("symmetric_rms_residual"),
         "AIC (sym.)": ex.get("symmetric_aic"),
         "Ps (asym.)": ex.get("asymmetric_Ps"), "kappa": ex.get("asymmetric_kappa"),
+        "kappa status": ex.get("asymmetric_kappa_status", "n/a"),
         "rms (asym.)": ex.get("asymmetric_rms_residual"), "AIC (asym.)": ex.get("asymmetric_aic"),
         "segregated state": ex.get("segregation_state", "n/a"),
         "profile from t": ex.get("profile_time_from"),

@@ -410,3 +410,31 @@ def test_mu_I_is_assessed_and_a_library_never_trusts_an_unassessed_fit(tmp_path)
     st = gc.closure_status(lib)
     st = st.set_index("parameter")["parameter_status"]
     assert st["mu_d"] == "unidentified" and st["mu_s"] == "identified"
+
+
+def test_asymmetric_flux_kappa_at_its_bound_is_not_a_result():
+    """fit_asymmetric_flux was a plain curve_fit: on the default campaign's three profiles its
+    kappa sat at the bound 0 (4.5e-18 at sigma = 0.6) and was stored as a value.  A profile
+    whose asymmetry points the other way (the mirror image of a kappa = 0.5 profile, which
+    Eq. 2.9 with kappa >= 0 cannot describe) must give the symmetric form with kappa fixed at 0
+    and say why; a kappa = 0.6 profile must identify kappa within 2 stderr."""
+    from granflow.fitting import compare_segregation_models, fit_asymmetric_flux, phi_asymmetric
+
+    z = np.linspace(0.0, 1.0, 41)
+    rng = np.random.default_rng(3)
+    mirror = 1.0 - phi_asymmetric(1.0 - z, -4.0, 0.5, 0.5) + rng.normal(0.0, 0.005, z.size)
+    fit = fit_asymmetric_flux(z, mirror, 0.5)
+    assert fit.status == "reduced" and fit.form == "symmetric"
+    assert fit.param_status == {"Ps": "identified", "kappa": "fixed"}
+    assert fit.params["kappa"] == 0.0 and "does not identify kappa" in fit.param_reason["kappa"]
+    assert "at the optimiser bound" in fit.message
+    table = compare_segregation_models(z, mirror, 0.5).set_index("model")
+    assert table.loc["asymmetric flux", "kappa_status"] == "fixed"
+    assert table.loc["asymmetric flux", "n_params"] == 1
+    # the reduced fit is the symmetric T-eq. 28 fit: the same Ps within 1e-6
+    assert table.loc["asymmetric flux", "Ps"] == pytest.approx(
+        table.loc["symmetric T-eq.28", "Ps"], rel=1e-6)
+    asym = phi_asymmetric(z, 4.0, 0.5, 0.6) + rng.normal(0.0, 0.01, z.size)
+    good = fit_asymmetric_flux(z, asym, 0.5)
+    assert good.status == "ok" and good.param_status["kappa"] == "identified"
+    assert abs(good.params["kappa"] - 0.6) < 2.0 * good.stderr["kappa"]

@@ -98,7 +98,9 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
     :mod:`granflow.steady.segregation`), otherwise the last ``window`` time units.  Depth is
     scaled to [0, 1] over [b, s] of Eq. (42) computed from the same windows' sigma_zz.  The
     asymmetric-flux profile (seed 001 Eq. 2.9) is fitted to the same profile for comparison
-    (``extra``: Ps, kappa, rms residual and AIC of both models).
+    (``extra``: Ps, kappa, rms residual and AIC of both models; ``asymmetric_status`` and
+    ``asymmetric_kappa_status``: "reduced" and "fixed" where the profile does not identify
+    kappa, which then is 0, the symmetric flux).
     Returns (FitResult tagged with sigma/contact_law, Ps spread over windows, profile dict);
     the fit's ``stderr`` of Ps is replaced by the standard error of the mean of the per-window
     fits (decorrelated windows; ``stderr_method`` says so) -- the covariance of the correlated
@@ -129,6 +131,10 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
         tag = "symmetric" if r["model"].startswith("symmetric") else "asymmetric"
         for col in ("Ps", "kappa", "rms_residual", "aic"):
             fit.extra[f"{tag}_{col}"] = float(r[col])
+        if tag == "asymmetric":
+            # "reduced"/"fixed": the profile does not identify kappa (at its bound 0)
+            fit.extra["asymmetric_status"] = str(r["status"])
+            fit.extra["asymmetric_kappa_status"] = str(r["kappa_status"])
     fit.extra["segregation_state"] = str(ds.attrs.get("segregation_state", "unknown"))
     fit.extra["profile_time_from"] = float(t_from)
     per = []

@@ -159,7 +159,7 @@ def _distinct_x(x) -> int | None:
 def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, sigma=None,
               ids=None, coords=None, valid_range=None, extra=None, error_measure: str = "",
               selection: str = "", n_ensemble: int = N_ENSEMBLE, seed: int = 0,
-              bootstrap: Callable | None = None, heldout: bool = True,
+              bootstrap: Callable | None = None, heldout: bool = True, structure: bool = True,
               structure_x=None, sigma_parts: dict | None = None) -> FitResult:
     """Fit ``forms`` (full first) to (x, y); return the first identified one (module docstring).
 
@@ -170,6 +170,8 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
     gives the standard errors (e.g. a joint bootstrap over an hstop fit the model depends on).
     ``structure_x``: the closure's physical input (default ``x`` when 1D), against which the
     residuals are tested for structure the form misses (:func:`.identify.residual_structure`).
+    ``heldout``/``structure`` False: no held-out z-scores / no residual-structure test (points
+    that are not independent runs, e.g. one run's profile, whose neighbours are correlated).
     ``sigma_parts``: ``{part: per-run standard deviations}`` whose squares add up to ``sigma``^2
     (within-run and between-seed): each parameter's variance is split into them
     (:func:`.lsq.variance_split`, ``diagnostics["uncertainty_split"]``).
@@ -235,7 +237,7 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
                 d["uncertainty_split"] = split
                 res = res.replace(diagnostics=d)
         sx = structure_x if structure_x is not None else (x if np.ndim(x) == 1 else None)
-        if sx is not None:
+        if structure and sx is not None:
             res = apply_structure(res, sx, lsq.residuals, s)
         if heldout:
             res = _with_heldout(res, form, x, y, s, ids)

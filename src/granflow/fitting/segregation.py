@@ -180,9 +180,25 @@ def phi_asymmetric(z, Ps, phi0, kappa, A=None):
     return out[()] if out.ndim == 0 else out
 
 
+#: optimiser bounds of the asymmetric-flux profile fit (kappa in [0, 1): seed 001 Eq. 2.9)
+ASYM_BOUNDS = {"Ps": (-100.0, 100.0), "kappa": (0.0, 0.99)}
+#: why the reduced (symmetric) form fixes kappa
+KAPPA_ZERO = ("fixed at 0, the symmetric flux of T-eq. 28 (a special case of Eq. 2.9): the "
+              "profile does not identify kappa")
+
+
 def fit_asymmetric_flux(z, phi, phi0=None, *, sigma=None, contact_law=None,
                         min_points: int = 5) -> FitResult:
-    """Fit Ps and kappa of the asymmetric-flux steady profile to one run's phi(z)."""
+    """Fit Ps and kappa of the asymmetric-flux steady profile to one run's phi(z).
+
+    Through :func:`.forms.fit_forms`: the full form (Ps, kappa) first; where it does not
+    identify kappa (kappa at its bound 0: no asymmetry in the profile; or a stderr beyond
+    :data:`.identify.TOLERANCES`), the symmetric form with kappa fixed at 0 (status
+    ``reduced``).  Profile points are not independent runs (the coarse-graining kernel
+    correlates neighbours), so no held-out or residual-structure test is made and the
+    covariance stderrs are lower bounds: :func:`granflow.campaign.collect.segregation_fit`
+    replaces them by the spread of per-window fits.
+    """
     coords = dict(contact_law=contact_law, sigma=sigma)
     names = ("Ps", "kappa")
     z, phi = (np.asarray(x, dtype=float).ravel() for x in (z, phi))
@@ -196,44 +212,53 @@ def fit_asymmetric_flux(z, phi, phi0=None, *, sigma=None, contact_law=None,
     z, phi = z[order], phi[order]
     if phi0 is None:
         phi0 = float(integrate.trapezoid(phi, z) / (z[-1] - z[0]))
+    if not 0.0 < phi0 < 1.0:
+        return failed_fit("segregation_asymmetric", ASYM, names,
+                          f"phi0 = {phi0} not in (0, 1)", n, **coords)
     sym = fit_Ps(z, phi, phi0)
-    p0 = [sym.params["Ps"] if sym.ok else 1.0, 0.3]
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", optimize.OptimizeWarning)
-            popt, pcov = optimize.curve_fit(
-                lambda zz, Ps, kappa: phi_asymmetric(zz, Ps, phi0, kappa), z, phi, p0=p0,
-                bounds=([-100.0, 0.0], [100.0, 0.99]), maxfev=2000)
-    except (RuntimeError, ValueError, optimize.OptimizeWarning) as exc:
-        return failed_fit("segregation_asymmetric", ASYM, names, f"fit failed: {exc}", n,
-                          **coords)
-    params = dict(zip(names, map(float, popt)))
-    resid = phi - phi_asymmetric(z, params["Ps"], phi0, params["kappa"])
-    return FitResult(
-        kind="segregation_asymmetric", equation=ASYM, params=params,
-        stderr=covariance_stderr(pcov, names), error=error_eq49(resid), n_points=n, ok=True,
-        message=f"fitted {n} profile points", error_measure="Eq. (49) of phi - phi_fit",
-        valid_range={"z": data_range(z)},
-        coords={k: v for k, v in coords.items() if v is not None},
-        extra={"phi0": phi0, "A": asymmetric_flux_amplitude(params["kappa"]),
-               "rms_residual": float(np.sqrt(np.mean(resid ** 2)))},
-    )
+    ps0 = min(max(sym.params["Ps"] if sym.ok else 1.0, -99.0), 99.0)
+    full = Form("asymmetric", lambda zz, Ps, kappa: phi_asymmetric(zz, Ps, phi0, kappa),
+                names, lambda x, y: [ps0, 0.3],
+                "dphi/dz = -A(kappa) Ps phi (1 - phi)(1 - kappa phi)", bounds=dict(ASYM_BOUNDS),
+                min_points=min_points)
+    symmetric = Form("symmetric", lambda zz, Ps: phi_asymmetric(zz, Ps, phi0, 0.0), ("Ps",),
+                     lambda x, y: [ps0], "kappa = 0: dphi/dz = -Ps phi (1 - phi)",
+                     bounds={"Ps": ASYM_BOUNDS["Ps"]}, fixed={"kappa": (0.0, KAPPA_ZERO)},
+                     min_points=min_points)
+    res = fit_forms("segregation_asymmetric", ASYM, names, [full, symmetric], z, phi,
+                    coords=coords, valid_range={"z": data_range(z)},
+                    error_measure="Eq. (49) of phi - phi_fit", heldout=False, structure=False)
+    if res.state == "failed":
+        return res
+    kappa = res.params["kappa"]
+    resid = phi - phi_asymmetric(z, res.params["Ps"], phi0, kappa)
+    extra = {**res.extra, "phi0": phi0, "A": asymmetric_flux_amplitude(kappa),
+             "rms_residual": float(np.sqrt(np.mean(resid ** 2)))}
+    return res.replace(extra=extra)
 
 
 def compare_segregation_models(z, phi, phi0=None) -> pd.DataFrame:
     """Fit the symmetric (T-eq. 28) and asymmetric-flux profiles to one run and compare residuals.
 
-    Columns: model, ok, n_params, Ps, Ps_stderr, kappa, rms_residual, error (Eq. 49), aic
-    (Gaussian AIC = n ln(RSS/n) + 2 k; lower is better).
+    Columns: model, ok, status, n_params, Ps, Ps_stderr, kappa, kappa_status, rms_residual,
+    error (Eq. 49), aic (Gaussian AIC = n ln(RSS/n) + 2 k, k the free parameters of the stored
+    form; lower is better; the points are correlated, so differences are indicative only).
+    The asymmetric row is :func:`fit_asymmetric_flux`'s: where the profile does not identify
+    kappa it is the symmetric form again (status ``reduced``, kappa ``fixed`` at 0).
     """
     rows = []
-    for name, fit, k in (("symmetric T-eq.28", fit_Ps(z, phi, phi0), 1),
-                         ("asymmetric flux", fit_asymmetric_flux(z, phi, phi0), 2)):
+    for name, fit in (("symmetric T-eq.28", fit_Ps(z, phi, phi0)),
+                      ("asymmetric flux", fit_asymmetric_flux(z, phi, phi0))):
         rms = fit.extra.get("rms_residual", math.nan)
         n = fit.n_points
-        aic = n * math.log(rms ** 2) + 2 * k if fit.ok and rms > 0 else math.nan
-        rows.append({"model": name, "ok": fit.ok, "n_params": k, "Ps": fit.params["Ps"],
-                     "Ps_stderr": fit.stderr["Ps"], "kappa": fit.params.get("kappa", 0.0),
+        k = sum(1 for st in fit.param_status.values() if st in ("identified", "unidentified")
+                ) if fit.param_status else len(fit.params)
+        usable = fit.state in ("ok", "reduced", "misfit", "unidentified")
+        aic = n * math.log(rms ** 2) + 2 * k if usable and rms > 0 else math.nan
+        rows.append({"model": name, "ok": fit.ok, "status": fit.state, "n_params": k,
+                     "Ps": fit.params["Ps"], "Ps_stderr": fit.stderr["Ps"],
+                     "kappa": fit.params.get("kappa", 0.0),
+                     "kappa_status": fit.param_status.get("kappa", "not_in_form"),
                      "rms_residual": rms, "error": fit.error, "aic": aic})
     return pd.DataFrame(rows)
 
