@@ -258,8 +258,10 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     nreb = 0
     lrow = np.empty((work.shape[0], K.PAIR_BLOCK, 9))
     lext = np.empty((work.shape[0], K.PAIR_BLOCK, 3))
+    _T = np.bool_(True)  # run-time flags where the engine has them (one specialisation)
+    _F = np.bool_(False)
     t0 = _now(buf)
-    K.particle_pass(False, False, False, True, False, pos, vel, omega, vel_p, omega_p, force,
+    K.particle_pass(_F, _F, _F, _T, _F, pos, vel, omega, vel_p, omega_p, force,
                     torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
                     use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
                     coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
@@ -305,7 +307,7 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
         if LOCAL_ROWS:
             K.split_runs(near_n[0], blk_pair_nc, nslots, run_start)
             K.pair_pass(pos, vel_p, omega_p, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred,
-                        hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, True, crow,
+                        hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, _T, crow,
                         cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel,
                         blk_pair_nc, run_start, force, torque, near, near_n, ntouch,
                         step + 1 == nsteps, lrow, lext)

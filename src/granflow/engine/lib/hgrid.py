@@ -540,7 +540,7 @@ def hgrid_pairs_u32(pos, radius, fixed, Lx, Ly, skin, level_of, level_cell, cap)
         out_q = np.empty(npair, dtype=np.uint32)
         _found_rows(xs, ys, zs, rs, fs, Lx, Ly, skin, ls, ncx, ncy, ncz, csx, csy, csz, base,
                     rmax, count, zmin, margin, offs, filts, noff, cell_of, start, cell_particles,
-                    found_count, found_start, out_q, 0)
+                    found_count, found_start, out_q, np.int64(0))  # not a literal: one compile
     # transpose to rows of the lower index (counting sort, serial: deterministic)
     row_start = np.zeros(n + 1, dtype=np.int64)
     for p in range(n):
