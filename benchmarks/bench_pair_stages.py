@@ -23,7 +23,6 @@ the per-block bookkeeping; its sum is ~90 % of the profile's pair pass
 from __future__ import annotations
 
 import argparse
-import ctypes
 import sys
 from pathlib import Path
 
@@ -34,14 +33,10 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import bench_engine_vs_lammps as B  # noqa: E402
+from bench_engine_profile import CLOCK_MONOTONIC, _clock_gettime  # noqa: E402
 
 from granflow.engine.lib import kernels as K  # noqa: E402
 
-_libc = ctypes.CDLL(None)
-_clock_gettime = _libc.clock_gettime
-_clock_gettime.argtypes = [ctypes.c_int, ctypes.c_void_p]
-_clock_gettime.restype = ctypes.c_int
-CLOCK_MONOTONIC = 1
 STAGES = ("scan", "compact", "gather", "maths", "scatter", "push")
 
 
