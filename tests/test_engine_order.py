@@ -200,3 +200,38 @@ def test_rows_after_a_call_are_those_of_its_last_step(steps):
     mobile = ~s.fixed
     expected = s.force[mobile] - s.mass[mobile, None] * s.gvec
     assert np.allclose(total[mobile], expected, rtol=0, atol=1e-9 * np.abs(f).max())
+
+
+def test_mobile_selection_is_the_mask_as_a_slice_and_gives_the_same_sums():
+    """The per-sample energies select the mobile particles by a slice (they precede the fixed
+    ones and sorts keep it so): the same particles in the same order as the boolean mask, so
+    the same sums bit for bit, through sorts; a system that breaks the order gets the mask."""
+    s = _shuffled_packing()
+    s.sort_min_mobile = 0
+    mask = ~s.fixed
+    sel = s.mobile_selection()
+    assert sel == slice(0, int(mask.sum()))
+    assert s.fixed.flags.c_contiguous and s.fixed.flags.writeable
+    for _ in range(3):
+        _run(s, [200])
+        e = s.energies()
+        want = float(np.sum(s.mass[mask] * (-s.gvec[2]) * s.pos[mask, 2]))
+        assert e["gravitational"] == want  # exact: same elements, same order, same sum
+        np.testing.assert_array_equal(s.vel[sel, 0], s.vel[mask, 0])
+    t = _shuffled_packing()
+    t.fixed = np.r_[True, t.fixed[1:]]  # a fixed particle first: not mobile-first
+    np.testing.assert_array_equal(t.mobile_selection(), ~t.fixed)
+
+
+def test_a_scalar_fixed_flag_is_stored_as_an_own_contiguous_array():
+    """``set_particles(fixed=False)`` (the base preparation) gives the same array layout as a
+    per-particle flag array or a restored state, so the kernels compile once for all three
+    (a broadcast scalar was a stride-0 view: numba compiled a second 'A'-layout version)."""
+    s = _packing()
+    t = ParticleSystem(s.Lx, s.Ly, s.interactions, gvec=s.gvec)
+    t.set_particles(s.pos, 2.0 * s.radius, ptype=s.ptype, fixed=False)
+    u = ParticleSystem(s.Lx, s.Ly, s.interactions, gvec=s.gvec)
+    u.set_particles(s.pos, 2.0 * s.radius, ptype=s.ptype, fixed=s.fixed)
+    for a in (t.fixed, u.fixed):
+        assert a.flags.c_contiguous and a.flags.writeable and a.strides == (1,)
+    assert numba.typeof(t.fixed) == numba.typeof(u.fixed) == numba.typeof(s.fixed.copy())

@@ -53,8 +53,11 @@ class EnergySeries:
 
     def sample(self, system: ParticleSystem):
         e = system.energies()
-        mobile = ~system.fixed
-        u = float(np.mean(system.vel[mobile, 0])) if mobile.any() else 0.0
+        select = getattr(system, "mobile_selection", None)  # the engine's; a dump's has none
+        mobile = select() if select is not None else ~system.fixed
+        # a contiguous copy either way (a slice or a mask): the same mean, bit for bit
+        u_mobile = np.ascontiguousarray(system.vel[mobile, 0])
+        u = float(np.mean(u_mobile)) if u_mobile.size else 0.0
         for key, value in zip(SERIES, (system.time, e["kinetic"], e["elastic"], e["gravitational"], u)):
             self.data[key].append(float(value))
 

@@ -99,7 +99,9 @@ class ParticleSystem:
         self.mass = np.asarray(density, dtype=np.float64) * math.pi / 6.0 * (2 * self.radius) ** 3
         self.inertia = 0.4 * self.mass * self.radius**2  # solid sphere: I = m d^2 / 10
         self.ptype = np.array(ptype, dtype=np.int64)  # own, contiguous: sorted in place
-        self.fixed = np.asarray(fixed, dtype=bool)
+        # own, contiguous, writable: one numba specialisation for fresh, restored and base-
+        # preparation systems (a broadcast scalar is a stride-0 read-only view: 'A' layout)
+        self.fixed = np.array(fixed, dtype=bool)
         self.wall_hist = np.zeros((n, 3))
         self.wall_dmax = np.zeros(n)
         self.wall_rows = np.zeros((n, K.NROW))
@@ -142,6 +144,21 @@ class ParticleSystem:
         is the particle that had index k when the particles were set (particles keep their
         identity when the engine re-sorts them, :attr:`ids`)."""
         return np.argsort(self.ids, kind="stable")
+
+    def mobile_selection(self):
+        """The mobile particles as an index: ``slice(0, n)`` when they precede the fixed ones
+        (the order of :meth:`set_particles`, kept by the spatial sort), else the boolean mask.
+        Either selects the same particles in the same order (the same sums, bit for bit); the
+        slice saves the mask and its copies at every sample.  Cached per ``fixed`` array (the
+        engine never changes it in place)."""
+        cached = getattr(self, "_mobile_sel", None)
+        if cached is not None and cached[0] is self.fixed:
+            return cached[1]
+        mobile = ~self.fixed
+        n = int(np.count_nonzero(mobile))
+        sel = slice(0, n) if not self.fixed[:n].any() else mobile
+        self._mobile_sel = (self.fixed, sel)
+        return sel
 
     @property
     def inv_mass(self):
@@ -258,7 +275,7 @@ class ParticleSystem:
         if not hasattr(self, "_inv_mass"):
             self._cache_inverse()
         et, er = K.kinetic_energy(self.vel, self.omega, self.mass, self.inertia, self._inv_mass)
-        mobile = ~self.fixed
+        mobile = self.mobile_selection()
         e_grav = float(np.sum(self.mass[mobile] * (-self.gvec[2]) * self.pos[mobile, 2]))
         return {"kinetic": et + er, "kinetic_translational": et, "kinetic_rotational": er,
                 "elastic": self.e_elastic, "gravitational": e_grav,
