@@ -111,6 +111,20 @@ def test_default_campaign_covers_every_closure():
     text = reductions_vs_paper(soft)
     assert "collision time t_c 0.02 (paper 0.005)" in text
     assert "Froude number +10 to +41 %" in text and "packing fraction -0.010" in text
+    # snapshots every t_c (cg_every 2 of t_c/2 samples): stated with the effect measured
+    # against the paper's t_c/2; every 2 t_c with the bias measured against t_c; none at t_c/2
+    assert cfg["numerics"]["cg_every"] == 2
+    assert "coarse-grained snapshots every 1 t_c (paper t_c/2); measured on the same runs" in text
+    sparse = copy.deepcopy(cfg)
+    sparse["numerics"]["cg_every"] = 4
+    assert "the snapshots undersample the contact stress" in reductions_vs_paper(sparse)
+    dense = copy.deepcopy(cfg)
+    dense["numerics"]["cg_every"] = 1
+    assert "snapshots every" not in reductions_vs_paper(dense)
+    odd = copy.deepcopy(cfg)
+    odd["numerics"].update(cg_every=3, sample_interval=0.001)  # 3 x 0.2 t_c: not measured
+    assert "snapshots every 0.6 t_c (paper t_c/2)" in reductions_vs_paper(odd)
+    assert "SNAPSHOT_INTERVAL_EFFECT" not in reductions_vs_paper(odd)
     # all runs share one base per (lambda, box)
     assert len({G.base_path(cfg, r) for r in runs}) == 1
 

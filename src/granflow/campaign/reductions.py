@@ -40,6 +40,14 @@ def _fmt(x) -> str:
     return str(x)
 
 
+def snapshot_interval_tc(numerics: dict, t_c: float) -> float:
+    """Time between coarse-grained snapshots in units of t_c: ``cg_every`` samples of
+    ``sample_interval`` (default t_c/2)."""
+    every = int(numerics.get("cg_every", 1) or 1)
+    si = numerics.get("sample_interval")
+    return every * (float(si) / float(t_c) if si else 0.5)
+
+
 def config_differences(config: dict) -> list[str]:
     """Settings of a merged campaign config that differ from :data:`PAPER`, one phrase each."""
     out = []
@@ -59,6 +67,14 @@ def config_differences(config: dict) -> list[str]:
     for key, label in (("steps_per_collision", "t_c/dt"), ("cg_width", "coarse-graining width")):
         if key in nu and not _same(nu[key], PAPER[key]):
             out.append(f"{label} {_fmt(nu[key])} (paper {_fmt(PAPER[key])})")
+    # the coarse-grained snapshots: every cg_every-th sample, a sample every sample_interval
+    # (default t_c/2, the paper's snapshot interval)
+    interval = snapshot_interval_tc(nu, sp.get("t_c", PAPER["t_c"]))
+    if not _same(interval, 0.5):
+        from ..reference import snapshot_interval_note
+
+        out.append(f"coarse-grained snapshots every {interval:g} t_c (paper t_c/2)"
+                   + snapshot_interval_note(interval))
     base = config.get("base", {}) or {}
     if "layers" in base and not _same(base["layers"], PAPER["base_layers"]):
         out.append(f"base settled from {_fmt(base['layers'])} layers (paper 12)")
