@@ -102,6 +102,8 @@ README_COMMANDS = {
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_engine_scaling.py --lammps":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
+    ".venv/bin/python benchmarks/bench_sampling.py":
+        (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
 }
 
 
