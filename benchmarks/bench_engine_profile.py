@@ -260,12 +260,13 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     lext = np.empty((work.shape[0], K.PAIR_BLOCK, 3))
     _T = np.bool_(True)  # run-time flags where the engine has them (one specialisation)
     _F = np.bool_(False)
+    serial = np.bool_(nslots == 1)  # as kernels.advance: one thread, no parallel region
     t0 = _now(buf)
     K.particle_pass(_F, _F, _F, _T, _F, pos, vel, omega, vel_p, omega_p, force,
                     torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
                     use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
                     coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
-                    blk_disp_near)
+                    blk_disp_near, serial)
     acc[INTEG] += _now(buf) - t0
     bound, bound_near = K._exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp,
                                                blk_disp_near)
@@ -331,7 +332,7 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
                         omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx,
                         Ly, gvec, dt, use_wall, wall_type, wall_hist, wall_dmax, wall_rows,
                         wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
-                        blk_disp, near_ref, blk_disp_near)
+                        blk_disp, near_ref, blk_disp_near, serial)
         step_len = dt * np.sqrt(K._block_max(blk_disp)) + K.BOUND_SLACK
         bound += step_len
         bound_near += step_len

@@ -42,6 +42,12 @@ Layout of a time step (issue 15: throughput, and the same numbers for any thread
    displacements of the next step.  Per-block maxima (overlap, displacement) and partial sums
    (released spring energy) are combined serially in block order: independent of the threads.
 
+At one thread both passes run their bodies (:func:`_pair_runs`, :func:`_particle_blocks`) on
+the calling thread instead of launching a parallel region: the same code and numbers, without
+the ~1 us per region and step that a one-thread region still costs, which small systems feel
+(measured 2026-11-27: 12.6 -> 11.2 us per step at 177 particles, 22.3 -> 21.2 at 602, the
+default campaign's thinnest bracket and its H = 10 chute).
+
 The neighbour list is rebuilt (:func:`rebuild_pairs`: hierarchical grid, one search pass) when
 a particle has moved more than skin/2.  Systems of at least SORT_MIN_MOBILE mobile particles are
 put in spatial order at every SORT_EVERY-th rebuild (:func:`sort_particles`: bins of one diameter
@@ -604,48 +610,17 @@ def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
             hflag[p] = _has_spring(sx, sy, sz)
 
 
-@njit(cache=True, parallel=True, error_model="numpy", fastmath=CONTACT_FASTMATH)
-def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
-              hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow, cext,
-              ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, run_start, force,
-              torque, near, near_n, ntouch, keep_rows, lrow, lext):
-    """Contact forces of the pairs of the near list (see the module docstring).
-
-    ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
-    mid-step velocities of the last drift (tangential spring increment).  Only the pairs of the
-    near list ``near[:near_n[0]]`` (:func:`near_pass`; in pair order) are examined: the others
-    cannot touch.  They are processed in blocks of PAIR_BLOCK near entries; ``ntouch[k]`` says
-    whether near entry k touches; the touching pairs of block b, in pair order, get the compact
-    indices q = b PAIR_BLOCK, b PAIR_BLOCK + 1, ... (``ridx[p] = q``): ``crow[q]`` = force on i
-    (0:3), torque on i (3:6), torque on j (6:9), ``cext[q]`` = elastic energy, overlap, normal
-    force; ``pstate[p]`` = CONTACT (or GRAZING: touching with zero overlap in floating point,
-    not accumulated).  A pair that stops touching while it carries a spring releases the
-    spring's energy (``prel[p]``, state OPENED) and loses its history.  Per block: the largest
-    overlap and the released energy (summed in pair order).  ``scratch`` (uint32, one per
-    pair) holds the block-local lists of touching pairs; ``work`` (one row per thread) the
-    vectorised linear contacts (``all_linear``).
-
-    The blocks are split into contiguous runs, one per thread: run s is blocks
-    ``run_start[s]:run_start[s + 1]`` (:func:`split_runs` balances them by the contacts each
-    block had at the previous step).  The first run adds its contacts to ``force`` and
-    ``torque`` (which hold gravity) in pair order as it goes; the others leave their rows
-    (``blk_nc[b]`` contacts in block b) for :func:`push_rows`, which adds them afterwards,
-    again in pair order.  So every force is summed in pair order, whatever the number of
-    threads and wherever the runs split: the same numbers for any count.
-
-    ``keep_rows`` False (a step whose rows nobody reads: not the last of an :func:`advance`
-    call): the first run writes its rows into the per-thread block buffers ``lrow[tid]``,
-    ``lext[tid]`` (PAIR_BLOCK rows, cache-resident) instead of ``crow``/``cext`` (which exceed
-    the caches of a large system), and adds them from there: the same numbers; ``ridx`` and the
-    rows of the pair list are then stale until a step that keeps them.
-    """
+@njit(cache=True, error_model="numpy", fastmath=CONTACT_FASTMATH)
+def _pair_runs(s0, s1, pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred,
+               hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow,
+               cext, ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, run_start,
+               force, torque, near, near_n, ntouch, keep_rows, lrow, lext):
+    """Runs ``s0:s1`` of :func:`pair_pass` (its body; serial), on the calling thread."""
     nnear = near_n[0]
-    nslots = run_start.shape[0] - 1
     box = (Lx, Ly, 0.5 * Lx, 0.5 * Ly)
     half_Lx = 0.5 * Lx
     half_Ly = 0.5 * Ly
-    for su in prange(nslots):
-        slot = np.int64(su)
+    for slot in range(s0, s1):
         local = slot == 0 and not keep_rows
         tid = numba.get_thread_id()
         if local:
@@ -728,6 +703,59 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
             blk_overlap[b] = ov
             blk_erel[b] = erel
             blk_nc[b] = nc - k0
+
+
+@njit(cache=True, parallel=True, error_model="numpy", fastmath=CONTACT_FASTMATH)
+def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
+              hist_dmax, hflag, law_tab, coef, all_linear, work, dt, update_history, crow, cext,
+              ridx, prel, pstate, scratch, blk_overlap, blk_erel, blk_nc, run_start, force,
+              torque, near, near_n, ntouch, keep_rows, lrow, lext):
+    """Contact forces of the pairs of the near list (see the module docstring).
+
+    ``vel, omega`` are the velocities at the force time (dashpots), ``vel_h, omega_h`` the
+    mid-step velocities of the last drift (tangential spring increment).  Only the pairs of the
+    near list ``near[:near_n[0]]`` (:func:`near_pass`; in pair order) are examined: the others
+    cannot touch.  They are processed in blocks of PAIR_BLOCK near entries; ``ntouch[k]`` says
+    whether near entry k touches; the touching pairs of block b, in pair order, get the compact
+    indices q = b PAIR_BLOCK, b PAIR_BLOCK + 1, ... (``ridx[p] = q``): ``crow[q]`` = force on i
+    (0:3), torque on i (3:6), torque on j (6:9), ``cext[q]`` = elastic energy, overlap, normal
+    force; ``pstate[p]`` = CONTACT (or GRAZING: touching with zero overlap in floating point,
+    not accumulated).  A pair that stops touching while it carries a spring releases the
+    spring's energy (``prel[p]``, state OPENED) and loses its history.  Per block: the largest
+    overlap and the released energy (summed in pair order).  ``scratch`` (uint32, one per
+    pair) holds the block-local lists of touching pairs; ``work`` (one row per thread) the
+    vectorised linear contacts (``all_linear``).
+
+    The blocks are split into contiguous runs, one per thread: run s is blocks
+    ``run_start[s]:run_start[s + 1]`` (:func:`split_runs` balances them by the contacts each
+    block had at the previous step).  The first run adds its contacts to ``force`` and
+    ``torque`` (which hold gravity) in pair order as it goes; the others leave their rows
+    (``blk_nc[b]`` contacts in block b) for :func:`push_rows`, which adds them afterwards,
+    again in pair order.  So every force is summed in pair order, whatever the number of
+    threads and wherever the runs split: the same numbers for any count.
+
+    ``keep_rows`` False (a step whose rows nobody reads: not the last of an :func:`advance`
+    call): the first run writes its rows into the per-thread block buffers ``lrow[tid]``,
+    ``lext[tid]`` (PAIR_BLOCK rows, cache-resident) instead of ``crow``/``cext`` (which exceed
+    the caches of a large system), and adds them from there: the same numbers; ``ridx`` and the
+    rows of the pair list are then stale until a step that keeps them.
+    """
+    nslots = run_start.shape[0] - 1
+    if nslots == 1:
+        # one run (one thread): no parallel region to launch (~1 us per region and step)
+        _pair_runs(np.int64(0), np.int64(1), pos, vel, omega, vel_h, omega_h, radius, ptype, Lx,
+                   Ly, pi, pj, mred, hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work,
+                   dt, update_history, crow, cext, ridx, prel, pstate, scratch, blk_overlap,
+                   blk_erel, blk_nc, run_start, force, torque, near, near_n, ntouch, keep_rows,
+                   lrow, lext)
+    else:
+        for su in prange(nslots):
+            slot = np.int64(su)
+            _pair_runs(slot, slot + 1, pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly,
+                       pi, pj, mred, hist_t, hist_dmax, hflag, law_tab, coef, all_linear, work,
+                       dt, update_history, crow, cext, ridx, prel, pstate, scratch, blk_overlap,
+                       blk_erel, blk_nc, run_start, force, torque, near, near_n, ntouch,
+                       keep_rows, lrow, lext)
 
 
 #: Cost of a contact in the pair pass, in units of the cost of scanning one near pair, and the
@@ -927,42 +955,21 @@ def _wall_contact(i, pos, vel, omega, vel_h, omega_h, radius, inv_mass, ptype, w
         wall_dmax[i] = dm
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def particle_pass(
-    do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque,
-    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type, wall_hist,
-    wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
-    blk_disp, near_ref, blk_disp_near,
+@njit(cache=True, error_model="numpy")
+def _particle_blocks(
+    b0, b1, do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force,
+    torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type,
+    wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap,
+    blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near,
 ):
-    """The per-particle part of a step, in blocks of PARTICLE_BLOCK particles.
-
-    For every particle, in this order: ``do_wall``: its flat-wall contact at the current state
-    (without history update: the initial forces); ``do_reset``: force = gravity, torque = 0;
-    ``do_sum``: add its wall row to the force and torque (the pair pass added the pairs) and
-    check them; ``do_kick``: the closing half kick; ``do_begin``: the next step's opening half
-    kick, drift, predicted velocity (``vel_p``, ``omega_p``), force reset to gravity (for the
-    next pair pass), flat-wall contact (history updated) and squared drift speed.  Per block:
-    the largest wall overlap, the spring energy released at the wall, a non-finite-force flag
-    and the largest squared drift speed |v|^2 (``blk_disp``; inf for a NaN velocity;
-    ``blk_disp_near`` is set to 0).  ``pos_ref`` and ``near_ref`` are not read here: see
-    :func:`displacement_maxima`.
-
-    The parts of a particle depend on that particle alone, so the step's parts (``do_sum``,
-    ``do_kick``, ``do_begin``) run in one loop over the particles, each particle's force,
-    torque and velocities read once into registers: the same operations in the same order per
-    particle as one loop per part, the same numbers, and the per-block reductions still in
-    particle order (issue 15: one loop per part re-read and re-wrote every particle's rows in
-    each loop, ~48 us per step on the benchmark chute; fused ~33 us).
-    """
+    """Blocks ``b0:b1`` of :func:`particle_pass` (its body; serial), on the calling thread."""
     n = pos.shape[0]
-    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
     h = 0.5 * dt
     g0 = gvec[0]
     g1 = gvec[1]
     g2 = gvec[2]
     integrate = do_kick or do_begin
-    for bu in prange(nblock):
-        b = np.int64(bu)
+    for b in range(b0, b1):
         # unsigned particle indices: no negative-index handling in the loops
         i0 = np.uint64(b * PARTICLE_BLOCK)
         i1 = np.uint64(min(b * PARTICLE_BLOCK + PARTICLE_BLOCK, n))
@@ -1120,6 +1127,55 @@ def particle_pass(
         blk_bad[b] = bad
         blk_disp[b] = disp
         blk_disp_near[b] = 0.0
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def particle_pass(
+    do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque,
+    radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type, wall_hist,
+    wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
+    blk_disp, near_ref, blk_disp_near, serial,
+):
+    """The per-particle part of a step, in blocks of PARTICLE_BLOCK particles (``serial``: all
+    on the calling thread, no parallel region; the same numbers).
+
+    For every particle, in this order: ``do_wall``: its flat-wall contact at the current state
+    (without history update: the initial forces); ``do_reset``: force = gravity, torque = 0;
+    ``do_sum``: add its wall row to the force and torque (the pair pass added the pairs) and
+    check them; ``do_kick``: the closing half kick; ``do_begin``: the next step's opening half
+    kick, drift, predicted velocity (``vel_p``, ``omega_p``), force reset to gravity (for the
+    next pair pass), flat-wall contact (history updated) and squared drift speed.  Per block:
+    the largest wall overlap, the spring energy released at the wall, a non-finite-force flag
+    and the largest squared drift speed |v|^2 (``blk_disp``; inf for a NaN velocity;
+    ``blk_disp_near`` is set to 0).  ``pos_ref`` and ``near_ref`` are not read here: see
+    :func:`displacement_maxima`.
+
+    The parts of a particle depend on that particle alone, so the step's parts (``do_sum``,
+    ``do_kick``, ``do_begin``) run in one loop over the particles, each particle's force,
+    torque and velocities read once into registers: the same operations in the same order per
+    particle as one loop per part, the same numbers, and the per-block reductions still in
+    particle order (issue 15: one loop per part re-read and re-wrote every particle's rows in
+    each loop, ~48 us per step on the benchmark chute; fused ~33 us).
+    """
+    n = pos.shape[0]
+    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
+    if serial or nblock == 1:
+        # one thread or one block: no parallel region to launch (~1 us per region and step)
+        _particle_blocks(np.int64(0), np.int64(nblock), do_reset, do_sum, do_kick, do_begin,
+                         do_wall, pos, vel, omega, vel_p, omega_p, force, torque, radius,
+                         inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
+                         wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
+                         pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                         blk_disp_near)
+    else:
+        for bu in prange(nblock):
+            b = np.int64(bu)
+            _particle_blocks(b, b + 1, do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel,
+                             omega, vel_p, omega_p, force, torque, radius, inv_mass, mass,
+                             inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type,
+                             wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
+                             pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                             blk_disp_near)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -1418,6 +1474,7 @@ def compute_forces(
     near_ref[:, :] = pos
     near_ok[0] = 1
     run_start = np.empty(nslots + 1, dtype=np.int64)
+    serial = np.bool_(nslots == 1)  # one thread: passes without a parallel region
     split_runs(near_n[0], np.zeros(near_count.shape[0], dtype=np.int64), nslots, run_start)
     # flags as run-time booleans (np.bool_): numba compiles one specialisation of a kernel per
     # combination of *literal* flags -- four of particle_pass and two of pair_pass and
@@ -1427,7 +1484,7 @@ def compute_forces(
     particle_pass(_T, _F, _F, _F, _T, pos, vel, omega, vel, omega, force, torque,
                   radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
                   wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
-                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near, serial)
     pair_pass(pos, vel, omega, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, _F, crow, cext, ridx,
               prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, run_start,
@@ -1439,7 +1496,7 @@ def compute_forces(
     particle_pass(_F, _T, _F, _F, _F, pos, vel, omega, vel, omega, force, torque,
                   radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
                   wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
-                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near)
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near, serial)
     max_ov = 0.0
     for b in range(nbp):
         max_ov = max(max_ov, blk_pair_overlap[b])
@@ -1498,6 +1555,7 @@ def advance(
     vel_p = np.empty_like(vel)
     omega_p = np.empty_like(omega)
     run_start = np.empty(nslots + 1, dtype=np.int64)
+    serial = np.bool_(nslots == 1)  # one thread: passes without a parallel region
     n_mobile = 0
     while n_mobile < n and not fixed[n_mobile]:
         n_mobile += 1
@@ -1517,7 +1575,7 @@ def advance(
                       torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
                       use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
                       coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
-                      blk_disp_near)
+                      blk_disp_near, serial)
         bound, bound_near = _exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp,
                                                  blk_disp_near)
     for step in range(nsteps):
@@ -1564,7 +1622,7 @@ def advance(
                       omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly,
                       gvec, dt, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
                       law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
-                      blk_disp_near)
+                      blk_disp_near, serial)
         step_len = dt * np.sqrt(_block_max(blk_disp)) + BOUND_SLACK  # inf for a NaN velocity
         bound += step_len
         bound_near += step_len
