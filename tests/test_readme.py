@@ -309,7 +309,7 @@ def test_default_campaign_claims_match_the_configuration():
 def test_campaign_time_is_the_recorded_measurement():
     records = json.loads((REPO / "benchmarks" / "campaign_times.json").read_text())
     rec = records["config"]
-    assert f"The default campaign took {rec['minutes']:g} min on {rec['cores']} cores" in \
+    assert f"The default campaign took {rec['minutes']:.1f} min on {rec['cores']} cores" in \
         " ".join(README.split())
 
 
