@@ -79,6 +79,8 @@ def _no_sort(pos, vel, omega, vel_p, omega_p, force, torque, radius, inv_mass, m
 _sort_particles = K.sort_particles if SORTS else _no_sort
 #: the pair pass keeps the rows of steps nobody reads in block buffers (2026-11-25)
 LOCAL_ROWS = "keep_rows" in K.pair_pass.py_func.__code__.co_varnames
+#: the particle pass adds the rows of the pair pass's runs 1... itself (no serial push_rows)
+PUSH_IN_PARTICLE_PASS = "push" in K.particle_pass.py_func.__code__.co_varnames
 _timer = time.process_time if CLOCK == CLOCK_PROCESS_CPUTIME_ID else time.perf_counter
 
 
@@ -262,19 +264,27 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
     _F = np.bool_(False)
     serial = np.bool_(nslots == 1)  # as kernels.advance: one thread, no parallel region
     t0 = _now(buf)
-    K.particle_pass(_F, _F, _F, _T, _F, pos, vel, omega, vel_p, omega_p, force,
-                    torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
-                    use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
-                    coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
-                    blk_disp_near, serial)
+    if PUSH_IN_PARTICLE_PASS:
+        K.particle_pass(_F, _F, _F, _T, _F, pos, vel, omega, vel_p, omega_p, force,
+                        torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
+                        use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
+                        coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                        blk_disp_near, serial, _F, run_start, near, near_n, pi, pj, crow, pstate,
+                        scratch, blk_pair_nc)
+    else:
+        K.particle_pass(_F, _F, _F, _T, _F, pos, vel, omega, vel_p, omega_p, force,
+                        torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
+                        use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
+                        coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                        blk_disp_near, serial)
     acc[INTEG] += _now(buf) - t0
     bound, bound_near = K._exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp,
-                                               blk_disp_near)
+                                               blk_disp_near, serial)
     for step in range(nsteps):
         t0 = _now(buf)
         if bound > half_skin or bound_near > half_near:  # measured only when a bound crosses
             bound, bound_near = K._exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp,
-                                                       blk_disp_near)
+                                                       blk_disp_near, serial)
         t1 = _now(buf)
         acc[DISP] += t1 - t0
         if bound > half_skin:
@@ -297,7 +307,7 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
             t1 = t2
         if near_ok[0] == 0 or bound_near > half_near:
             K.near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count,
-                        pstate)
+                        pstate, serial)
             K.near_index(near_tmp, near_count, near, near_n)
             near_ref[:, :] = pos
             near_ok[0] = 1
@@ -326,13 +336,23 @@ def _new_loop(nsteps, pos, vel, omega, force, torque, radius, inv_mass, mass, in
                         cext, ridx, prel, pstate, scratch, blk_pair_overlap, blk_pair_erel,
                         blk_pair_nc, nslots, force, torque, near, near_n, ntouch)
             b1 = (near_n[0] + K.PAIR_BLOCK - 1) // K.PAIR_BLOCK // nslots
-        K.push_rows(b1, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force, torque)
+        if not PUSH_IN_PARTICLE_PASS:
+            K.push_rows(b1, near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
+                        torque)
         t2 = _now(buf)
-        K.particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
-                        omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx,
-                        Ly, gvec, dt, use_wall, wall_type, wall_hist, wall_dmax, wall_rows,
-                        wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
-                        blk_disp, near_ref, blk_disp_near, serial)
+        if PUSH_IN_PARTICLE_PASS:  # the rows of runs 1... added in the particle pass
+            K.particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
+                            omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype,
+                            Lx, Ly, gvec, dt, use_wall, wall_type, wall_hist, wall_dmax,
+                            wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel,
+                            blk_bad, blk_disp, near_ref, blk_disp_near, serial, True, run_start,
+                            near, near_n, pi, pj, crow, pstate, scratch, blk_pair_nc)
+        else:
+            K.particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
+                            omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype,
+                            Lx, Ly, gvec, dt, use_wall, wall_type, wall_hist, wall_dmax,
+                            wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel,
+                            blk_bad, blk_disp, near_ref, blk_disp_near, serial)
         step_len = dt * np.sqrt(K._block_max(blk_disp)) + K.BOUND_SLACK
         bound += step_len
         bound_near += step_len

@@ -1,9 +1,10 @@
 """The engine's numbers do not depend on how the work is split (issue 15).
 
 Forces are summed in pair order whatever the number of threads (the pair pass's runs of
-blocks, ``kernels.pair_pass`` / ``push_rows``, split by ``kernels.split_runs``), and the neighbour and near lists hold every
-touching pair in pair order whenever they are rebuilt, so a run gives the same numbers, bit for
-bit, on any number of threads and with any Verlet skin.
+blocks, ``kernels.pair_pass``, split by ``kernels.split_runs``; the rows of runs 1... added
+by the particle pass, each thread onto its own share of the particles), and the neighbour and
+near lists hold every touching pair in pair order whenever they are rebuilt, so a run gives the
+same numbers, bit for bit, on any number of threads and with any Verlet skin.
 """
 
 import math
@@ -142,3 +143,47 @@ def test_split_runs_covers_the_blocks_in_order_and_balances_two_runs(nnear, nslo
         rest = cost.sum() - np.r_[0.0, np.cumsum(cost)]
         worst = np.maximum(first, rest)
         assert worst[run[1]] <= worst.min() + (cost + K.PUSH_COST * blk_nc[:nblock]).max()
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(2, 1300), st.integers(0, 4 * 512), st.integers(2, 9), st.integers(0, 2**31 - 1))
+def test_fused_push_gives_every_particle_its_rows_in_pair_order(n, npair, nslots, seed):
+    """The particle pass's push (``kernels._push_rows_into``, one equal share of the particle
+    blocks per slot, stopping at the first pair past the share) adds exactly what the serial
+    ``push_rows`` adds, bit for bit: every row of runs 1... onto both its particles, in pair
+    order, on sorted pair lists (i < j, by (i, j)) with random contacts and run splits."""
+    from granflow.engine.lib import kernels as K
+
+    rng = np.random.default_rng(seed)
+    # a sorted pair list i < j (duplicates removed)
+    i = rng.integers(0, n - 1, npair)
+    j = np.minimum(i + 1 + rng.geometric(0.02, npair), n - 1)
+    key = np.unique(i * n + j)
+    pi, pj = (key // n).astype(np.uint32), (key % n).astype(np.uint32)
+    npair = len(pi)
+    nblk = (npair + K.PAIR_BLOCK - 1) // K.PAIR_BLOCK
+    pstate = rng.choice(np.array([K.CONTACT, K.NO_CONTACT, K.GRAZING], np.uint8), npair,
+                        p=[0.6, 0.3, 0.1]).astype(np.uint8)
+    scratch = np.zeros(max(npair, 1), np.uint32)
+    blk_nc = np.zeros(nblk + 1, np.int64)
+    for b in range(nblk):  # the block's touching (and grazing) pairs, in pair order
+        listed = [p for p in range(b * K.PAIR_BLOCK, min((b + 1) * K.PAIR_BLOCK, npair))
+                  if pstate[p] != K.NO_CONTACT]
+        scratch[b * K.PAIR_BLOCK:b * K.PAIR_BLOCK + len(listed)] = listed
+        blk_nc[b] = len(listed)
+    crow = rng.normal(size=(max(npair, 1), 9)) * 10.0 ** rng.integers(-8, 8, (max(npair, 1), 1))
+    run_start = np.r_[0, np.sort(rng.integers(0, nblk + 1, nslots - 1)), nblk].astype(np.int64)
+    force0 = rng.normal(size=(n, 3))
+    torque0 = rng.normal(size=(n, 3))
+    ref_f, ref_t = force0.copy(), torque0.copy()
+    K.push_rows(run_start[1], npair, pi, pj, crow, pstate, scratch, blk_nc, ref_f, ref_t)
+    f, t = force0.copy(), torque0.copy()
+    nblock = (n + K.PARTICLE_BLOCK - 1) // K.PARTICLE_BLOCK
+    for r in range(nslots):
+        lo = (r * nblock) // nslots * K.PARTICLE_BLOCK
+        hi = min(((r + 1) * nblock) // nslots * K.PARTICLE_BLOCK, n)
+        for rr in range(1, nslots):
+            if K._push_rows_into(run_start[rr], run_start[rr + 1], lo, hi, pi, pj, crow,
+                                 pstate, scratch, blk_nc, f, t):
+                break
+    assert np.array_equal(f, ref_f) and np.array_equal(t, ref_t)

@@ -30,13 +30,16 @@ Layout of a time step (issue 15: throughput, and the same numbers for any thread
    :func:`_contact_force`, bitwise the same results), otherwise inlined scalar code.  Each
    contact writes one compact row (force, torque on i, torque on j; energy, overlap, normal
    force).  The blocks are split into one run per thread; the first run adds its contacts to
-   the forces as it goes, the other runs' rows are added after it (:func:`push_rows`), again in
-   pair order.  So every force is summed in pair order, exactly as a serial loop over the pairs
+   the forces as it goes, the other runs' rows are added after it, again in pair order, by the
+   particle pass (each thread onto its own particles; :func:`push_rows` does the same
+   serially).  So every force is summed in pair order, exactly as a serial loop over the pairs
    would, for any number of threads.  The first run writes its rows into a per-thread buffer
    of one block (cache-resident) except at the last step of an :func:`advance` call, whose rows
    the observers read: the pair list's rows of a large system exceed the caches, and writing
    them every step cost a fifth of the step at 1e5 particles.
-2. **particle pass** (:func:`particle_pass`, parallel over fixed blocks of particles): the
+2. **particle pass** (:func:`particle_pass`, parallel over fixed blocks of particles, an equal
+   share of the blocks per thread): the rows the pair pass's runs 1... left for the thread's
+   particles (in pair order), the
    flat-wall contact, the closing half kick of this step and — fused — the opening half kick,
    drift, predicted velocity, force reset to gravity, wall contact and Verlet-skin
    displacements of the next step.  Per-block maxima (overlap, displacement) and partial sums
@@ -730,9 +733,10 @@ def pair_pass(pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj, mr
     ``run_start[s]:run_start[s + 1]`` (:func:`split_runs` balances them by the contacts each
     block had at the previous step).  The first run adds its contacts to ``force`` and
     ``torque`` (which hold gravity) in pair order as it goes; the others leave their rows
-    (``blk_nc[b]`` contacts in block b) for :func:`push_rows`, which adds them afterwards,
-    again in pair order.  So every force is summed in pair order, whatever the number of
-    threads and wherever the runs split: the same numbers for any count.
+    (``blk_nc[b]`` contacts in block b) for :func:`particle_pass` (``push``) or
+    :func:`push_rows`, which add them afterwards, again in pair order.  So every force is
+    summed in pair order, whatever the number of threads and wherever the runs split: the
+    same numbers for any count.
 
     ``keep_rows`` False (a step whose rows nobody reads: not the last of an :func:`advance`
     call): the first run writes its rows into the per-thread block buffers ``lrow[tid]``,
@@ -772,7 +776,7 @@ def split_runs(nnear, blk_nc, nslots, run_start):
     (``run_start``, nslots + 1 block boundaries): a block costs its near pairs plus
     CONTACT_COST times its contacts at the last step (``blk_nc``; 0 for blocks that did not
     exist), the first run also PUSH_COST per contact (it adds its contacts to the forces while
-    the others compute; :func:`push_rows` adds theirs afterwards).  Any split gives the same
+    the others compute; the particle pass adds theirs afterwards).  Any split gives the same
     numbers: it only moves work between threads."""
     nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
     run_start[0] = 0
@@ -838,6 +842,32 @@ def push_rows(b_start, nnear, pi, pj, crow, pstate, scratch, blk_nc, force, torq
                     torque[j, k] += crow[q, 6 + k]
 
 
+@njit(cache=True)
+def _push_rows_into(b0, b1, lo, hi, pi, pj, crow, pstate, scratch, blk_nc, force, torque):
+    """:func:`push_rows` for near-list blocks ``b0:b1``, onto the particles ``lo <= k < hi``
+    only (the others' rows are skipped): each particle still gets its contacts in pair order.
+    The pairs are (i < j) sorted by (i, j), so the scan stops at the first contact with
+    i >= hi (returns True then: no later row reaches the range either)."""
+    for b in range(b0, b1):
+        k0 = b * PAIR_BLOCK
+        for q in range(np.uint64(k0), np.uint64(k0 + blk_nc[b])):
+            p = scratch[q]
+            if pstate[p] == CONTACT:
+                i = np.int64(pi[p])
+                if i >= hi:
+                    return True
+                j = np.int64(pj[p])
+                if lo <= i:
+                    for k in range(3):
+                        force[i, k] += crow[q, k]
+                        torque[i, k] += crow[q, 3 + k]
+                if lo <= j and j < hi:
+                    for k in range(3):
+                        force[j, k] -= crow[q, k]
+                        torque[j, k] += crow[q, 6 + k]
+    return False
+
+
 #: Skin of the near list, as a fraction of the neighbour-list skin: the pair pass examines only
 #: the pairs closer than r_i + r_j + NEAR_FRACTION * skin at the near list's build, which is
 #: rebuilt (from the neighbour list) when a particle has moved NEAR_FRACTION * skin / 2.  (In a
@@ -845,18 +875,14 @@ def push_rows(b_start, nnear, pi, pj, crow, pstate, scratch, blk_nc, force, torq
 NEAR_FRACTION = 0.25
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate):
-    """Near pairs per block of PAIR_BLOCK listed pairs: those closer than
-    r_i + r_j + ``near_skin`` (and every pair that carries a spring), in pair order, at
-    ``near_tmp[b PAIR_BLOCK:]``, their number in ``near_count[b]``; every pair's state is reset
-    (pairs outside the near list keep NO_CONTACT until the next near list)."""
+@njit(cache=True, error_model="numpy")
+def _near_blocks(b0, b1, pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count,
+                 pstate):
+    """Blocks ``b0:b1`` of :func:`near_pass` (its body; serial), on the calling thread."""
     npair = pi.shape[0]
-    nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
     half_Lx = 0.5 * Lx
     half_Ly = 0.5 * Ly
-    for bu in prange(nblock):
-        b = np.int64(bu)
+    for b in range(b0, b1):
         p0 = b * PAIR_BLOCK
         p1 = min(p0 + PAIR_BLOCK, npair)
         for p in range(np.uint64(p0), np.uint64(p1)):
@@ -875,6 +901,27 @@ def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_coun
             c += np.uint64(t)
             pstate[p] = NO_CONTACT
         near_count[b] = np.int64(c) - p0
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate,
+              serial):
+    """Near pairs per block of PAIR_BLOCK listed pairs: those closer than
+    r_i + r_j + ``near_skin`` (and every pair that carries a spring), in pair order, at
+    ``near_tmp[b PAIR_BLOCK:]``, their number in ``near_count[b]``; every pair's state is reset
+    (pairs outside the near list keep NO_CONTACT until the next near list).  ``serial``: all
+    blocks on the calling thread, no parallel region (the same numbers)."""
+    npair = pi.shape[0]
+    nblock = (npair + PAIR_BLOCK - 1) // PAIR_BLOCK
+    if serial or nblock <= 1:
+        # one thread or one block: no parallel region to launch (~1 us per region)
+        _near_blocks(np.int64(0), np.int64(nblock), pos, radius, hflag, Lx, Ly, pi, pj,
+                     near_skin, near_tmp, near_count, pstate)
+    else:
+        for bu in prange(nblock):
+            b = np.int64(bu)
+            _near_blocks(b, b + 1, pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp,
+                         near_count, pstate)
 
 
 @njit(cache=True)
@@ -1134,10 +1181,22 @@ def particle_pass(
     do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel, omega, vel_p, omega_p, force, torque,
     radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type, wall_hist,
     wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad,
-    blk_disp, near_ref, blk_disp_near, serial,
+    blk_disp, near_ref, blk_disp_near, serial, push, run_start, near, near_n, pi, pj, crow,
+    pstate, scratch, blk_nc,
 ):
     """The per-particle part of a step, in blocks of PARTICLE_BLOCK particles (``serial``: all
     on the calling thread, no parallel region; the same numbers).
+
+    ``push``: first add the contacts that runs 1... of the pair pass left as rows (run_start,
+    near list, rows as :func:`push_rows` takes them), in the same region: slot r of
+    ``run_start.shape[0] - 1`` takes an equal share of the particle blocks, adds onto its own
+    particles the rows of runs 1... that reach them, in pair order (after run 0's direct sums,
+    as :func:`push_rows` would; :func:`_push_rows_into` stops at the first pair whose i is past
+    the slot's particles: the pairs are i < j sorted by (i, j)) and then runs its blocks.  Each
+    particle gets its contacts in pair order and each block's reductions are written by one
+    thread: the same numbers as :func:`push_rows` followed by this pass without ``push``, for
+    any thread count, and no serial push after the pair pass (issue 15: it was 10 of the
+    benchmark chute's 140 us per step at two threads, reading rows from the other core).
 
     For every particle, in this order: ``do_wall``: its flat-wall contact at the current state
     (without history update: the initial forces); ``do_reset``: force = gravity, torque = 0;
@@ -1159,6 +1218,28 @@ def particle_pass(
     """
     n = pos.shape[0]
     nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
+    nslots = run_start.shape[0] - 1
+    nnear = near_n[0]
+    if push and not serial and nslots > 1 and nblock > 1:
+        for su in prange(nslots):
+            r = np.int64(su)
+            b0 = (r * nblock) // nslots
+            b1 = ((r + 1) * nblock) // nslots
+            lo = b0 * PARTICLE_BLOCK
+            hi = min(b1 * PARTICLE_BLOCK, n)
+            for rr in range(1, nslots):
+                if _push_rows_into(run_start[rr], run_start[rr + 1], lo, hi, pi, pj, crow,
+                                   pstate, scratch, blk_nc, force, torque):
+                    break
+            _particle_blocks(b0, b1, do_reset, do_sum, do_kick, do_begin, do_wall, pos, vel,
+                             omega, vel_p, omega_p, force, torque, radius, inv_mass, mass,
+                             inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall, wall_type,
+                             wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef,
+                             pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
+                             blk_disp_near)
+        return
+    if push and nslots > 1:
+        push_rows(run_start[1], nnear, pi, pj, crow, pstate, scratch, blk_nc, force, torque)
     if serial or nblock == 1:
         # one thread or one block: no parallel region to launch (~1 us per region and step)
         _particle_blocks(np.int64(0), np.int64(nblock), do_reset, do_sum, do_kick, do_begin,
@@ -1178,15 +1259,12 @@ def particle_pass(
                              blk_disp_near)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def displacement_maxima(pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near):
-    """Per block of PARTICLE_BLOCK particles: the largest squared displacement since the last
-    neighbour build (``pos_ref``; inf for a NaN position) and since the last near list
-    (``near_ref``), minimum image in x, y."""
+@njit(cache=True, error_model="numpy")
+def _displacement_blocks(b0, b1, pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near):
+    """Blocks ``b0:b1`` of :func:`displacement_maxima` (its body; serial), on the calling
+    thread."""
     n = pos.shape[0]
-    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
-    for bu in prange(nblock):
-        b = np.int64(bu)
+    for b in range(b0, b1):
         i0 = np.uint64(b * PARTICLE_BLOCK)
         i1 = np.uint64(min(b * PARTICLE_BLOCK + PARTICLE_BLOCK, n))
         disp = 0.0
@@ -1210,6 +1288,25 @@ def displacement_maxima(pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near)
         blk_disp_near[b] = disp_near
 
 
+@njit(cache=True, parallel=True, error_model="numpy")
+def displacement_maxima(pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near, serial):
+    """Per block of PARTICLE_BLOCK particles: the largest squared displacement since the last
+    neighbour build (``pos_ref``; inf for a NaN position) and since the last near list
+    (``near_ref``), minimum image in x, y.  ``serial``: all blocks on the calling thread, no
+    parallel region (the same numbers)."""
+    n = pos.shape[0]
+    nblock = (n + PARTICLE_BLOCK - 1) // PARTICLE_BLOCK
+    if serial or nblock <= 1:
+        # one thread or one block: no parallel region to launch (~1 us per region)
+        _displacement_blocks(np.int64(0), np.int64(nblock), pos, pos_ref, near_ref, Lx, Ly,
+                             blk_disp, blk_disp_near)
+    else:
+        for bu in prange(nblock):
+            b = np.int64(bu)
+            _displacement_blocks(b, b + 1, pos, pos_ref, near_ref, Lx, Ly, blk_disp,
+                                 blk_disp_near)
+
+
 #: Slack added to the displacement bounds per step (absolute, in d): covers the rounding of the
 #: drift, so that a bound is never below the displacement it bounds.
 BOUND_SLACK = 1e-12
@@ -1228,9 +1325,9 @@ def _block_max(blk):
 
 
 @njit(cache=True)
-def _exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near):
+def _exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near, serial):
     """(largest displacement since the neighbour build, since the near list); inf for NaN."""
-    displacement_maxima(pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near)
+    displacement_maxima(pos, pos_ref, near_ref, Lx, Ly, blk_disp, blk_disp_near, serial)
     d2 = 0.0
     d2n = 0.0
     for b in range(blk_disp.shape[0]):
@@ -1468,13 +1565,13 @@ def compute_forces(
     blk_bad = np.zeros(nblock, dtype=np.bool_)
     blk_disp = np.zeros(nblock)
     blk_disp_near = np.zeros(nblock)
+    serial = np.bool_(nslots == 1)  # one thread: passes without a parallel region
     near_pass(pos, radius, hflag, Lx, Ly, pi, pj, NEAR_FRACTION * skin, near_tmp, near_count,
-              pstate)
+              pstate, serial)
     near_index(near_tmp, near_count, near, near_n)
     near_ref[:, :] = pos
     near_ok[0] = 1
     run_start = np.empty(nslots + 1, dtype=np.int64)
-    serial = np.bool_(nslots == 1)  # one thread: passes without a parallel region
     split_runs(near_n[0], np.zeros(near_count.shape[0], dtype=np.int64), nslots, run_start)
     # flags as run-time booleans (np.bool_): numba compiles one specialisation of a kernel per
     # combination of *literal* flags -- four of particle_pass and two of pair_pass and
@@ -1484,19 +1581,20 @@ def compute_forces(
     particle_pass(_T, _F, _F, _F, _T, pos, vel, omega, vel, omega, force, torque,
                   radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
                   wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
-                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near, serial)
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near, serial, _F,
+                  run_start, near, near_n, pi, pj, crow, pstate, scratch, blk_pair_nc)
     pair_pass(pos, vel, omega, vel, omega, radius, ptype, Lx, Ly, pi, pj, mred, hist_t,
               hist_dmax, hflag, law_tab, coef, all_linear, work, dt, _F, crow, cext, ridx,
               prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc, run_start,
               force, torque, near, near_n, ntouch, _T, np.empty((1, 0, 9)),
               np.empty((1, 0, 3)))
     nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
-    push_rows(run_start[1], near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
-              torque)
+    # the rows of runs 1... are added in the particle pass (push): as push_rows would
     particle_pass(_F, _T, _F, _F, _F, pos, vel, omega, vel, omega, force, torque,
                   radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt, use_wall,
                   wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab, coef, pos_ref,
-                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near, serial)
+                  blk_overlap, blk_erel, blk_bad, blk_disp, near_ref, blk_disp_near, serial, _T,
+                  run_start, near, near_n, pi, pj, crow, pstate, scratch, blk_pair_nc)
     max_ov = 0.0
     for b in range(nbp):
         max_ov = max(max_ov, blk_pair_overlap[b])
@@ -1575,14 +1673,15 @@ def advance(
                       torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly, gvec, dt,
                       use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state, law_tab,
                       coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
-                      blk_disp_near, serial)
+                      blk_disp_near, serial, _F, run_start, near, near_n, pi, pj, crow, pstate,
+                      scratch, blk_pair_nc)
         bound, bound_near = _exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp,
-                                                 blk_disp_near)
+                                                 blk_disp_near, serial)
     for step in range(nsteps):
         done = step + 1
         if bound > half_skin or bound_near > half_near or not np.isfinite(bound):
             bound, bound_near = _exact_displacements(pos, pos_ref, near_ref, Lx, Ly, blk_disp,
-                                                     blk_disp_near)
+                                                     blk_disp_near, serial)
         if not np.isfinite(bound):
             status = 1
             break
@@ -1601,7 +1700,8 @@ def advance(
             bound = 0.0
             nreb += 1
         if near_ok[0] == 0 or bound_near > half_near:
-            near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate)
+            near_pass(pos, radius, hflag, Lx, Ly, pi, pj, near_skin, near_tmp, near_count, pstate,
+                      serial)
             near_index(near_tmp, near_count, near, near_n)
             near_ref[:, :] = pos
             near_ok[0] = 1
@@ -1614,15 +1714,15 @@ def advance(
                   prel, pstate, scratch, blk_pair_overlap, blk_pair_erel, blk_pair_nc,
                   run_start, force, torque, near, near_n, ntouch, step + 1 == nsteps, lrow, lext)
         nbp = (near_n[0] + PAIR_BLOCK - 1) // PAIR_BLOCK
-        push_rows(run_start[1], near_n[0], pi, pj, crow, pstate, scratch, blk_pair_nc, force,
-                  torque)
         # literal flags: the step's particle pass is specialised (2 % faster than with run-time
-        # flags, measured); every other call shares the run-time specialisation
+        # flags, measured); every other call shares the run-time specialisation.  It first adds
+        # the rows that runs 1... of the pair pass left (push), each thread onto its particles
         particle_pass(False, True, True, step + 1 < nsteps, False, pos, vel, omega, vel_p,
                       omega_p, force, torque, radius, inv_mass, mass, inv_inertia, ptype, Lx, Ly,
                       gvec, dt, use_wall, wall_type, wall_hist, wall_dmax, wall_rows, wall_state,
                       law_tab, coef, pos_ref, blk_overlap, blk_erel, blk_bad, blk_disp, near_ref,
-                      blk_disp_near, serial)
+                      blk_disp_near, serial, True, run_start, near, near_n, pi, pj, crow, pstate,
+                      scratch, blk_pair_nc)
         step_len = dt * np.sqrt(_block_max(blk_disp)) + BOUND_SLACK  # inf for a NaN velocity
         bound += step_len
         bound_near += step_len
