@@ -104,6 +104,8 @@ README_COMMANDS = {
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_sampling.py":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
+    ".venv/bin/python benchmarks/bench_engine_threads.py --steps 5000 --repeat 5":
+        (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
 }
 
 
