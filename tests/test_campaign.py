@@ -218,6 +218,30 @@ def test_continuation_bracket_runs_start_from_the_nearest_flowing_run_above():
     assert not schema_errors(cfg, SCHEMA)
 
 
+def test_bracket_runs_take_their_own_snapshot_interval():
+    """``hstop_bisection.cg_every`` (the default: every 8th sample, 4 t_c) applies to the bracket
+    runs alone -- hstop takes only their flow state -- never reaches the bisection's settings,
+    and is stated in ``reductions_vs_paper``; a steady grid run keeps ``numerics.cg_every``."""
+    from granflow.campaign.reductions import config_differences
+
+    cfg = copy.deepcopy(load("config.yaml"))
+    bis = cfg["campaigns"]["chute"]["hstop_bisection"]
+    assert bis["cg_every"] == 8 and cfg["numerics"]["cg_every"] == 2
+    bracket = G.RunPoint("bracket", "linear", 1.0, 25.0, 3.0)
+    steady = G.RunPoint("chute", "linear", 1.0, 26.0, 10.0)
+    assert G.run_params(cfg, bracket)["cg_every"] == 8
+    assert G.run_params(cfg, steady)["cg_every"] == 2
+    assert "cg_every" in HS.BISECTION_RUN_KEYS  # not a Bisection setting (step 0's --settings)
+    notes = [d for d in config_differences(cfg) if d.startswith("bracket runs coarse-grained")]
+    assert notes == [notes[0]] and "every 4 t_c" in notes[0] and "no closure" in notes[0]
+    del bis["cg_every"]  # then the brackets are coarse-grained as the grid runs, no note
+    assert G.run_params(cfg, bracket)["cg_every"] == 2
+    assert not [d for d in config_differences(cfg) if d.startswith("bracket runs coarse")]
+    bis["cg_every"] = 0
+    errors = schema_errors(cfg, SCHEMA)
+    assert errors and any("cg_every" in e for e in errors)
+
+
 def test_bisection_replicates_per_height_and_bad_heights():
     """``replicates: n`` for every height, ``{H: n}`` for the named heights (others 1); a
     mapping naming a height no chain brackets, or a count of 0, is refused naming the key."""

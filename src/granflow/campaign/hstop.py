@@ -97,7 +97,7 @@ BISECTION_PROTOCOLS = ("fresh_fall", "continuation")
 #: Paper §6: arrested when E_kin/<E_ela> falls below 1e-5 within 500 time units.
 ARREST_HORIZON = 500.0
 #: keys of ``hstop_bisection`` that are not :class:`Bisection` settings (not passed to step 0)
-BISECTION_RUN_KEYS = ("protocol", "arrest_horizon")
+BISECTION_RUN_KEYS = ("protocol", "arrest_horizon", "cg_every")
 
 
 def bisection_protocol(cfg: dict) -> tuple[str, float]:

@@ -106,6 +106,14 @@ def config_differences(config: dict) -> list[str]:
             out.append(f"hstop brackets from bisection chains at H = {_fmt(list(bis.get('H') or []))}"
                        + (f" ({tol:g} deg wide)" if tol is not None else "")
                        + " instead of the paper's adaptive search")
+            if bis.get("cg_every") is not None:
+                b_int = snapshot_interval_tc(dict(cn, cg_every=bis["cg_every"]),
+                                             sp.get("t_c", PAPER["t_c"]))
+                if not _same(b_int, snapshot_interval_tc(cn, sp.get("t_c", PAPER["t_c"]))):
+                    out.append(f"bracket runs coarse-grained every {b_int:g} t_c: hstop takes "
+                               "only their flow state, their profiles enter no closure (the "
+                               "campaign table's depth averages of bracket rows are from these "
+                               "snapshots)")
             if (bis.get("protocol") or "fresh_fall") == "fresh_fall":
                 # measured 2026-11-26 (granflow.campaign.hstop.BISECTION_PROTOCOLS)
                 out.append("hstop bracket runs fall fresh onto the base instead of continuing "
