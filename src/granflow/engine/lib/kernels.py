@@ -824,25 +824,6 @@ def split_runs(nnear, blk_nc, nslots, run_start):
 
 
 @njit(cache=True)
-def push_rows(b_start, nnear, pi, pj, crow, pstate, scratch, blk_nc, force, torque):
-    """Add the contacts of near-list blocks ``b_start...`` (left as rows by :func:`pair_pass`)
-    to the forces and torques, in pair order."""
-    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
-    for b in range(b_start, nblock):
-        k0 = b * PAIR_BLOCK
-        for q in range(np.uint64(k0), np.uint64(k0 + blk_nc[b])):
-            p = scratch[q]
-            if pstate[p] == CONTACT:
-                i = pi[p]
-                j = pj[p]
-                for k in range(3):
-                    force[i, k] += crow[q, k]
-                    force[j, k] -= crow[q, k]
-                    torque[i, k] += crow[q, 3 + k]
-                    torque[j, k] += crow[q, 6 + k]
-
-
-@njit(cache=True)
 def _push_rows_into(b0, b1, lo, hi, pi, pj, crow, pstate, scratch, blk_nc, force, torque):
     """:func:`push_rows` for near-list blocks ``b0:b1``, onto the particles ``lo <= k < hi``
     only (the others' rows are skipped): each particle still gets its contacts in pair order.
@@ -866,6 +847,16 @@ def _push_rows_into(b0, b1, lo, hi, pi, pj, crow, pstate, scratch, blk_nc, force
                         force[j, k] -= crow[q, k]
                         torque[j, k] += crow[q, 6 + k]
     return False
+
+
+@njit(cache=True)
+def push_rows(b_start, nnear, pi, pj, crow, pstate, scratch, blk_nc, force, torque):
+    """Add the contacts of near-list blocks ``b_start...`` (left as rows by :func:`pair_pass`)
+    to the forces and torques, in pair order (serially; :func:`particle_pass` with ``push``
+    does it per thread)."""
+    nblock = (nnear + PAIR_BLOCK - 1) // PAIR_BLOCK
+    _push_rows_into(b_start, nblock, np.int64(0), np.int64(force.shape[0]), pi, pj, crow,
+                    pstate, scratch, blk_nc, force, torque)
 
 
 #: Skin of the near list, as a fraction of the neighbour-list skin: the pair pass examines only
