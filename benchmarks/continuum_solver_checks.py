@@ -10,7 +10,10 @@ tolerances):
 * the uniform limit (8 periodic cells) against the uniform-layer ODE (uniform_layer);
 * the Coulomb-friction dam break on a slope against Mangeney et al. (2000): relative L1 error of
   h, the 5 %-of-h0 contour and the numerical tip against the exact front x_B, for three dx;
-* tilupy's independent implementation of the same exact solution against granflow's.
+* tilupy's independent implementation of the same exact solution against granflow's;
+* with the depth-averaged viscous stress of Gray & Edwards (2014) (nu of the Table 1 closure
+  at 25 deg, h = 8): the decay rate of a small Fourier mode against the linearised equations,
+  and momentum and mass conservation on a periodic chute whose friction balances gravity.
 
 Run: ``NUMBA_NUM_THREADS=1 .venv/bin/python benchmarks/continuum_solver_checks.py``
 (needs the ``test`` extra for tilupy; ~15 s).
@@ -85,8 +88,50 @@ def against_tilupy(t=5.0, h0=4.0):
     print(f"tilupy vs granflow.continuum.exact: max|dh| = {np.max(np.abs(sol._h[0] - ours)):.2e}")
 
 
+def _least_damped(c, h, u, alpha, k, nu):
+    """Linearised Eq. (34) with the viscous stress: the least-damped complex frequency."""
+    def source(hh, qq):
+        return hh * float(c.acceleration(hh, qq / hh))
+    q, e = h * u, 1e-6
+    s_h = (source(h + e, q) - source(h - e, q)) / (2 * e) + k * k * nu * math.sqrt(h) * u
+    s_q = (source(h, q + e) - source(h, q - e)) / (2 * e) - k * k * nu * math.sqrt(h)
+    f_h, f_q = c.K * c.g_cos * h - alpha * u * u, 2 * alpha * u
+    om = np.roots([1.0, -f_q * k - 1j * s_q, -f_h * k * k - 1j * s_h * k])
+    return om[np.argmax(om.imag)]
+
+
+def viscous_stress():
+    alpha, h = 1.3, 8.0
+    c = eq50_closures(25.0, K=1.02, alpha=alpha)
+    nu = c.gray_edwards_viscosity(h)
+    u = c.steady_froude(h) * math.sqrt(c.g_cos * h)
+    for wl in (25.0, 50.0, 100.0):
+        k = 2 * math.pi / wl
+        w, w0 = _least_damped(c, h, u, alpha, k, nu), _least_damped(c, h, u, alpha, k, 0.0)
+        x = (np.arange(100) + 0.5) * wl / 100
+        h0 = h + 1e-3 * h * np.cos(k * x)
+        q0 = h * u + 1e-3 * h * np.real(w / k * np.exp(1j * k * x))
+        t_end = -1.0 / w.imag
+        r = shallow_layer(c, x, h0, q0 / h0, t_end, n_out=2, viscosity=nu)
+        ratio = np.sum((r.h.values[1] - h) * np.exp(-1j * k * x)) / \
+            np.sum((r.h.values[0] - h) * np.exp(-1j * k * x))
+        print(f"viscous (nu = {nu:.3f}) wavelength {wl:g}: decay rate solver "
+              f"{-math.log(abs(ratio)) / t_end:.5f} vs linearised {-w.imag:.5f} "
+              f"(Eq. 34 alone {-w0.imag:.5f})")
+    cc = FlowClosures.coulomb(theta=25.0, mu=math.tan(math.radians(25.0)), alpha=1.2)
+    x = np.arange(200) * 0.5 + 0.25
+    r = shallow_layer(cc, x, 6.0 + 3.0 * np.exp(-((x - 30.0) / 5.0) ** 2),
+                      2.0 + 0.5 * np.sin(2 * math.pi * x / 100.0), t_end=20.0, n_out=5,
+                      viscosity=2.0)
+    mom = (r.h * r.u_bar).sum("x").values
+    m = r.mass.values
+    print(f"viscous: max |P(t)-P(0)|/P(0) = {np.max(np.abs(mom - mom[0])) / mom[0]:.2e}, "
+          f"max |M(t)-M(0)|/M(0) = {np.max(np.abs(m - m[0])) / m[0]:.2e}")
+
+
 if __name__ == "__main__":
     mass_conservation()
     steady_and_uniform_limit()
     dam_break()
     against_tilupy()
+    viscous_stress()

@@ -105,15 +105,19 @@ def test_uniform_limit_is_the_ode():
     assert np.max(np.abs(fv.u_bar.values - ode.u_bar.values[:, None])) < 1e-7
 
 
-def _linear_modes(c, h, u, alpha, k):
+def _linear_modes(c, h, u, alpha, k, nu=0.0):
     """Linearised Eq. (34) about the steady uniform state (h, u), constant alpha, wavenumber
     k: the two complex frequencies omega of exp(i (k x - omega t)), the kinematic speed
-    -S_h/S_q = dq/dh and the gravity-wave characteristic alpha u + c."""
+    -S_h/S_q = dq/dh and the gravity-wave characteristic alpha u + c.  ``nu``: with the
+    viscous stress d(nu h^(3/2) du/dx)/dx, whose linearisation -k^2 nu h^(1/2) (q' - u h')
+    adds -k^2 nu h^(1/2) to S_q and +k^2 nu h^(1/2) u to S_h."""
     def source(hh, qq):
         return hh * float(c.acceleration(hh, qq / hh))
     q, e = h * u, 1e-6
     s_h = (source(h + e, q) - source(h - e, q)) / (2 * e)
     s_q = (source(h, q + e) - source(h, q - e)) / (2 * e)
+    visc = k * k * nu * math.sqrt(h)
+    s_h, s_q = s_h + visc * u, s_q - visc
     f_h, f_q = c.K * c.g_cos * h - alpha * u * u, 2 * alpha * u
     omega = np.roots([1.0, -f_q * k - 1j * s_q, -f_h * k * k - 1j * s_h * k])
     c_plus = alpha * u + math.sqrt(alpha * (alpha - 1) * u * u + c.K * c.g_cos * h)
@@ -152,6 +156,102 @@ def test_small_wave_follows_the_linearised_eq34(wavelength, regime):
         assert speed == pytest.approx(c_plus, rel=2e-2)
     else:
         assert speed == pytest.approx(c_kin, rel=1e-2)
+
+
+@pytest.mark.parametrize("wavelength", [25.0, 50.0])
+def test_small_wave_with_viscosity_follows_the_linearised_equations(wavelength):
+    """With the Gray-Edwards viscous stress (nu of Table 1's closure at 25 deg, h = 8: 2.28)
+    a small Fourier mode decays at the rate of the linearised equations (within 5 %), which
+    the viscous term raises 11.9x (wavelength 25) and 3.9x (50) over Eq. (34) alone."""
+    alpha = 1.3
+    c = eq50(25.0, K=1.02, alpha=alpha)
+    h = 8.0
+    nu = c.gray_edwards_viscosity(h)
+    u = c.steady_froude(h) * math.sqrt(c.g_cos * h)
+    k = 2 * math.pi / wavelength
+    omega, _, _ = _linear_modes(c, h, u, alpha, k, nu=nu)
+    w = omega[np.argmax(omega.imag)]
+    rate = -w.imag
+    omega0, _, _ = _linear_modes(c, h, u, alpha, k)
+    rate0 = -omega0[np.argmax(omega0.imag)].imag
+    assert rate > 3 * rate0            # the term dominates at these wavelengths
+    x = (np.arange(100) + 0.5) * wavelength / 100
+    eps = 1e-3 * h
+    h0 = h + eps * np.cos(k * x)
+    q0 = h * u + eps * np.real(w / k * np.exp(1j * k * x))
+    t_end = 1.0 / rate
+    res = shallow_layer(c, x, h0, q0 / h0, t_end, n_out=2, viscosity=nu)
+    ratio = np.sum((res.h.values[1] - h) * np.exp(-1j * k * x)) / \
+        np.sum((res.h.values[0] - h) * np.exp(-1j * k * x))
+    assert -math.log(abs(ratio)) / t_end == pytest.approx(rate, rel=5e-2)
+    assert res.attrs["viscosity"] == nu and "Gray & Edwards" in res.attrs["equation"]
+
+
+def test_viscous_term_conserves_mass_and_momentum_and_keeps_uniform_flow():
+    """The viscous stress only moves momentum between cells: with friction balancing gravity
+    (Coulomb mu = tan theta, u > 0) the total momentum sum(h u) dx is conserved to round-off,
+    as is the mass; a steady uniform flow stays steady bit for bit (du/dx = 0)."""
+    c = FlowClosures.coulomb(theta=25.0, mu=math.tan(math.radians(25.0)), alpha=1.2)
+    x = np.arange(200) * 0.5 + 0.25
+    h0 = 6.0 + 3.0 * np.exp(-((x - 30.0) / 5.0) ** 2)
+    u0 = 2.0 + 0.5 * np.sin(2 * math.pi * x / 100.0)
+    res = shallow_layer(c, x, h0, u0, t_end=20.0, n_out=5, viscosity=2.0)
+    mom = (res.h * res.u_bar).sum("x").values * 0.5
+    assert np.all(res.u_bar.values > 0)
+    assert np.max(np.abs(mom - mom[0])) <= 1e-12 * mom[0]
+    assert np.max(np.abs(res.mass.values - res.mass.values[0])) <= 1e-13 * res.mass.values[0]
+    inviscid = shallow_layer(c, x, h0, u0, t_end=20.0, n_out=5)
+    # the viscous run smooths the velocity: its spread shrinks faster
+    assert np.ptp(res.u_bar.values[-1]) < 0.8 * np.ptp(inviscid.u_bar.values[-1])
+    e = eq50(25.0, K=1.02, alpha=1.3)
+    u_s = e.steady_froude(8.0) * math.sqrt(e.g_cos * 8.0)
+    steady = shallow_layer(e, np.arange(32) + 0.5, 8.0, u_s, t_end=100.0, n_out=11,
+                           viscosity=e.gray_edwards_viscosity(8.0))
+    assert np.max(np.abs(steady.h.values - 8.0)) == 0.0
+    assert np.max(np.abs(steady.u_bar.values - u_s)) <= 1e-13
+
+
+def test_viscous_flux_converges_at_second_order():
+    """The viscous part of the momentum right-hand side against d(nu h^(3/2) du/dx)/dx of
+    smooth periodic h(x), u(x) (exact derivative): error falls 4x per halving of dx."""
+    from granflow.continuum.shallow import ShallowLayerSolver
+
+    c = FlowClosures.coulomb(theta=25.0, mu=0.4)
+    L, nu = 40.0, 1.7
+    errs = []
+    for n in (64, 128, 256):
+        dx = L / n
+        x = (np.arange(n) + 0.5) * dx
+        kx = 2 * math.pi / L
+        h = 5.0 + np.cos(kx * x)
+        u = 1.0 + 0.3 * np.sin(kx * x)
+        hx = -kx * np.sin(kx * x)
+        ux = 0.3 * kx * np.cos(kx * x)
+        uxx = -0.3 * kx * kx * np.sin(kx * x)
+        exact = nu * (1.5 * np.sqrt(h) * hx * ux + h ** 1.5 * uxx)
+        with_v = ShallowLayerSolver(c, dx, n, viscosity=nu).rhs(h, h * u)[1]
+        without = ShallowLayerSolver(c, dx, n).rhs(h, h * u)[1]
+        errs.append(np.max(np.abs(with_v - without - exact)))
+    assert errs[0] / errs[1] > 3.5 and errs[1] / errs[2] > 3.5, errs
+    assert errs[-1] < 1e-3 * np.max(np.abs(exact))
+
+
+def test_gray_edwards_viscosity_is_their_closed_form():
+    """With gamma = 0 the coefficient is Gray & Edwards' (2/9) (L sqrt(g)/beta) sin/sqrt(cos)
+    (tan zeta2 - tan)/(tan - tan zeta1) at every depth (L = A d); bad depths are refused."""
+    p = dict(P1, gamma=0.0)
+    c = FlowClosures(theta=25.0, mu=lambda h, F: mu_eq50(h, F, **p))
+    t, t1, t2 = (math.tan(math.radians(a)) for a in (25.0, p["delta1"], p["delta2"]))
+    ge = 2 / 9 * p["A"] / p["beta"] * math.sin(math.radians(25.0)) / \
+        math.sqrt(math.cos(math.radians(25.0))) * (t2 - t) / (t - t1)
+    for h in (4.0, 8.0, 20.0):
+        assert c.gray_edwards_viscosity(h) == pytest.approx(ge, rel=1e-9)
+    with pytest.raises(ValueError, match="h_ref"):
+        c.gray_edwards_viscosity(-1.0)
+    with pytest.raises(ValueError, match="no steady flow"):
+        eq50(18.0).gray_edwards_viscosity(2.0)        # arrested there
+    with pytest.raises(ValueError, match="viscosity"):
+        shallow_layer(c, np.arange(8) + 0.5, 8.0, 1.0, 1.0, viscosity=-1.0)
 
 
 @pytest.mark.parametrize("theta, delta", [(30.0, 20.0), (35.0, 25.0)])

@@ -113,6 +113,17 @@ def test_long_chute_positions_within_15_percent(comparison, feature):
     assert lc["worst_err_after_quarter"][feature] <= ex.TOL_POSITION
 
 
+@pytest.mark.parametrize("feature", [pytest.param(f, marks=_maybe_xfail(f"long_viscous:{f}"))
+                                     for f in ("peak", "front")])
+def test_long_chute_with_viscous_stress_within_15_percent(comparison, feature):
+    """The same comparison with the depth-averaged viscous stress of Gray & Edwards (2014),
+    nu from the library's own flow rule (no parameter fitted to the long chute)."""
+    lv = comparison["long_chute_viscous"]
+    assert "error" not in lv, lv.get("error")
+    assert lv["viscosity"] > 0
+    assert lv["worst_err_after_quarter"][feature] <= ex.TOL_POSITION
+
+
 @pytest.mark.parametrize("flux", ["symmetric", "asymmetric"])
 @pytest.mark.parametrize("sigma", [0.5, 0.6, 0.7, 0.8, 0.9])
 def test_segregation_half_time_within_20_percent(comparison, request, flux, sigma):
@@ -180,6 +191,10 @@ def test_package_example_runs_on_the_comparison_library(comparison):
     finally:
         os.chdir(cwd)
     assert float(abs(ns["res"].mass[-1] / ns["res"].mass[0] - 1)) < 1e-12
+    assert float(abs(ns["res_v"].mass[-1] / ns["res_v"].mass[0] - 1)) < 1e-12
+    assert ns["res_v"].attrs["viscosity"] > 0
+    # the viscous stress damps the bump's velocity differences
+    assert float(np.ptp(ns["res_v"].u_bar[-1])) < float(np.ptp(ns["res"].u_bar[-1]))
     lib = ns["lib"]
     c_D = float(lib["diffusivity_c_D"].squeeze())
     assert ns["D"] == pytest.approx(c_D * 0.75 / 7.9, rel=1e-12)

@@ -5,7 +5,9 @@
   :func:`uniform_layer`, :func:`switch_prediction` (over the library's parameter ensemble),
   :func:`fit_relaxation`.
 * :mod:`.shallow` -- one-dimensional finite-volume solver of Eq. (34a-c) with mu(h, F), alpha
-  and K from the library: :func:`shallow_layer`.
+  and K from the library: :func:`shallow_layer`; optionally with the depth-averaged viscous
+  stress of Gray & Edwards (2014) (``viscosity=``, nu from
+  :meth:`FlowClosures.gray_edwards_viscosity`: no parameter beyond the library's).
 * :mod:`.segregation` -- segregation and diffusive remixing in depth, Thornton et al. T-eq. (27)
   with the symmetric flux or the asymmetric flux of seed 001: :func:`segregation_layer`.
 * :mod:`.closures` -- :class:`FlowClosures`: a library's mu(h, F), alpha(h), K at one
@@ -50,6 +52,10 @@ Example: open a library and run each model ::
     h0 = 7.0 + 2.0 * np.exp(-((x - 50.0) / 8.0) ** 2)
     u0 = c.steady_froude(h0) * np.sqrt(c.g_cos * h0)
     res = shallow_layer(c, x, h0, u0, t_end=100.0)
+    #    ... and with the depth-averaged viscous stress (Gray & Edwards 2014), nu from the
+    #    library's own flow rule at the mean depth
+    res_v = shallow_layer(c, x, h0, u0, t_end=100.0,
+                          viscosity=c.gray_edwards_viscosity(float(h0.mean())))
     # 3. segregation with the library's Ps and the measured diffusivity (in a mixture at the
     #    small diameter, as measured over segregation transients: experiments module docstring)
     D = float(lib.closures.diffusivity(u_bar=0.75, h=7.9, d_mean=1.0))

@@ -265,6 +265,29 @@ class FlowClosures:
                                                         maxiter=500)
         return out if out.size > 1 else float(out[0])
 
+    def gray_edwards_viscosity(self, h_ref: float) -> float:
+        """Coefficient nu of the depth-averaged viscous stress d(nu h^(3/2) du/dx)/dx of Gray &
+        Edwards (2014, J. Fluid Mech. 755, 503) for a layer of depth ``h_ref`` at theta:
+
+            nu = (2/9) tan(theta) sqrt(g cos(theta)) h_ref / F_s(h_ref),
+
+        F_s the steady Froude number of these closures (:meth:`steady_froude`).  Their
+        nu = (2/9) (L sqrt(g) / beta) sin / sqrt(cos) (tan zeta2 - tan) / (tan - tan zeta1) is
+        this with the flow rule F = beta h / hstop(theta) (h / F_s = hstop / beta, the same at
+        every depth); with Eq. (47)'s offset gamma, h / F_s depends on the depth, hence
+        ``h_ref`` (the layer's mean depth).  It comes from the mu(I)-rheology's longitudinal
+        stress, mu p / |du/dz| integrated over a Bagnold profile (F = (2/5) I h / d), evaluated
+        at the steady state: an extension of Eq. (34), not part of the paper.  Raises
+        ValueError where the closures have no steady flow at ``h_ref``."""
+        h_ref = float(h_ref)
+        if not (math.isfinite(h_ref) and h_ref > 0):
+            raise ValueError(f"h_ref = {h_ref!r} is out of range: allowed (0, inf)")
+        F = self.steady_froude(h_ref)
+        if not (math.isfinite(F) and F > 0):
+            raise ValueError(f"no steady flow at h_ref = {h_ref:g}, theta = {self.theta:g} deg "
+                             f"(F_s = {F!r}): the Gray-Edwards viscosity needs one")
+        return 2.0 / 9.0 * self.tan_theta * math.sqrt(self.g_cos) * h_ref / F
+
     def attrs(self) -> dict:
         """Dataset attributes describing these closures (source, status, forms, K)."""
         out = {"closure_source": self.source, "theta_deg": self.theta,

@@ -11,7 +11,9 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   steady states of small periodic boxes on the same rough base tiled along x (a few tiles of a
   thicker flow make a bump), run with x-resolved depth-integrated coarse-graining
   (:mod:`granflow.coarse.columns`), and the shallow-layer solver started from the same h(x),
-  u_bar(x): positions of the peak and of the front over time.
+  u_bar(x): positions of the peak and of the front over time; Eq. (34) as the paper writes it
+  (``long_chute``) and with the depth-averaged viscous stress of Gray & Edwards (2014), nu from
+  the library's flow rule at the mean depth (``long_chute_viscous``).
 * **Segregation** (:func:`compare_segregation`): the campaign's bidisperse runs' indicator s(t)
   against T-eq. (27) with the library's Ps and the measured diffusivity D (both flux models);
   the half-time counts from the run's s0 at its flow start t0 in both, the model's clock shifted
@@ -386,9 +388,13 @@ def feature_positions(x, h, x_prev=None, L=None):
 
 
 def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
-                       allow_unidentified=True, extrapolate=True, out_nc=None) -> dict:
+                       allow_unidentified=True, extrapolate=True, out_nc=None,
+                       viscosity=None) -> dict:
     """Shallow-layer solver from the particle run's initial h(x), u_bar(x); positions of peak
-    and front over time, particle vs solver."""
+    and front over time, particle vs solver.  ``viscosity``: None (Eq. 34 as the paper
+    writes it), ``"gray_edwards"`` (with the depth-averaged viscous stress, nu from the
+    closures' steady flow rule at the layer's mean depth,
+    :meth:`FlowClosures.gray_edwards_viscosity`) or a number nu."""
     from ..coarse.columns import column_fields
     from .closures import FlowClosures
     from .shallow import shallow_layer
@@ -400,8 +406,15 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
     h0 = part.h.values[0]
     u0 = np.nan_to_num(part.u_bar.values[0])
     rng = c.fitted_ranges()
+    h_mean = float(np.mean(h0))
+    if viscosity is None:
+        nu = 0.0
+    elif viscosity == "gray_edwards":
+        nu = c.gray_edwards_viscosity(h_mean)
+    else:
+        nu = float(viscosity)
     sol = shallow_layer(c, x, h0, u0, float(times[-1]), times=times, check=True,
-                        extrapolate=extrapolate)
+                        extrapolate=extrapolate, viscosity=nu)
     if out_nc is not None:
         atomic_to_netcdf(sol, out_nc)
     L = float(part.attrs.get("cg_Lx", x[-1] + x[0]))
@@ -435,6 +448,7 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
                                                if k.startswith("closure_status_")},
             "fraction_outside_fitted_range_max": float(np.nanmax(
                 sol.fraction_outside_fitted_range.values)) if rng else math.nan,
+            "viscosity": nu, "viscosity_model": viscosity or "none", "h_mean": h_mean,
             "pass": bool(max(worst.values()) <= TOL_POSITION)}
 
 
@@ -684,6 +698,14 @@ def compare_all(lib_path, campaign_dir, switch_dirs, long_chute_dir, out_json, f
         res["long_chute"] = compare_long_chute(lib, Path(long_chute_dir) / "columns.nc", rho,
                                                theta, out_nc=Path(long_chute_dir) /
                                                "shallow_layer.nc")
+        # the same with the depth-averaged viscous stress of Gray & Edwards (2014)
+        try:
+            res["long_chute_viscous"] = compare_long_chute(
+                lib, Path(long_chute_dir) / "columns.nc", rho, theta,
+                out_nc=Path(long_chute_dir) / "shallow_layer_viscous.nc",
+                viscosity="gray_edwards")
+        except ValueError as exc:  # no steady flow at the mean depth: reported
+            res["long_chute_viscous"] = {"error": f"{type(exc).__name__}: {exc}"}
     seg_fits = json.loads((Path(campaign_dir) / "segregation_fits.json").read_text())
     for run in sorted(Path(campaign_dir).glob("segregation/**/summary.json")):
         try:
@@ -734,6 +756,8 @@ def plot_all(res: dict, figures) -> list:
         plt.close(fig)
         out.append(p)
     lc = res.get("long_chute")
+    lv = res.get("long_chute_viscous")
+    lv = lv if lv and "error" not in lv else None
     if lc:
         rows = lc["rows"]
         t = [r["t"] for r in rows]
@@ -752,6 +776,10 @@ def plot_all(res: dict, figures) -> list:
                     label=f"{f}: particles")
             ax.plot(t, [r[f"{f}_travel_solver"] for r in rows], "-", color=c,
                     label=f"{f}: shallow-layer solver")
+            if lv:
+                ax.plot([r["t"] for r in lv["rows"]],
+                        [r[f"{f}_travel_solver"] for r in lv["rows"]], "--", color=c,
+                        label=f"{f}: with viscous stress (nu = {lv['viscosity']:.2f})")
         ax.set_xlabel("t")
         ax.set_ylabel("distance travelled (d)")
         ax.legend(fontsize=7)
@@ -872,6 +900,19 @@ def format_tables(res: dict) -> str:
                   f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} {'front_s':>8}"
                   f" {'err':>7}"]
         for r in lc["rows"]:
+            lines.append(f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
+                         f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
+                         f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
+                         f"{r['front_err']:+7.1%}")
+    lv = res.get("long_chute_viscous")
+    if lv and "error" in lv:
+        lines += ["", f"long chute with the viscous stress: {lv['error']}"]
+    elif lv:
+        lines += ["", f"long chute with the Gray-Edwards viscous stress (nu = "
+                      f"{lv['viscosity']:.3f} at the mean depth {lv['h_mean']:.2f})",
+                  f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} {'front_s':>8}"
+                  f" {'err':>7}"]
+        for r in lv["rows"]:
             lines.append(f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
                          f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
                          f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "

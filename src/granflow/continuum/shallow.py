@@ -28,6 +28,17 @@ Scheme (finite volumes on a uniform grid of cell averages):
   uniform flow (mu(h, F) = tan(theta)) stays steady to round-off.
 * Boundaries: ``periodic`` (the particle chute) or ``open`` (zero-gradient ghost cells, for
   the dam break).
+* Optional depth-averaged viscous stress (``viscosity`` nu > 0; default 0: Eq. 34 as the paper
+  writes it): d(h u)/dt gains d(nu h^(3/2) du/dx)/dx, the term of the depth-averaged
+  mu(I)-rheology of Gray & Edwards (2014, J. Fluid Mech. 755, 503), with
+  nu = (2/9) (L sqrt(g) / beta) sin(theta) / sqrt(cos(theta)) (tan(zeta2) - tan(theta)) /
+  (tan(theta) - tan(zeta1)) = (2/9) tan(theta) sqrt(g cos(theta)) hstop(theta) / beta
+  (:meth:`FlowClosures.gray_edwards_viscosity` takes it from the closures' own steady flow
+  rule).  Discretised in conservative form inside the transport step (face viscous fluxes
+  nu h_f^(3/2) (u_R - u_L) / dx, h_f the mean of the two cells, zero at a dry face), so
+  momentum is still changed only by flux differences and by friction; the time step also
+  obeys the diffusive limit dt <= cfl dx^2 / max(nu h^(1/2)).  A uniform layer has du/dx = 0:
+  the term vanishes and the uniform limit and steady flows are unchanged.
 
 Tests: exact mass conservation, steady uniform flow, agreement with the uniform-layer ODE, and
 the Coulomb-friction dam break of Mangeney et al. (2000) (:func:`granflow.continuum.exact.
@@ -56,6 +67,8 @@ from .closures import FlowClosures
 from .output import finish
 
 EQ = "Weinhart et al. 2012 Eq. (34a-c), flat base"
+VISCOUS = (" + depth-averaged viscous stress d(nu h^(3/2) du/dx)/dx (Gray & Edwards 2014, "
+           "J. Fluid Mech. 755, 503)")
 BCS = ("periodic", "open")
 
 
@@ -92,11 +105,14 @@ class ShallowLayerSolver:
     """Explicit finite-volume solver of Eq. (34) (module docstring); use :func:`shallow_layer`."""
 
     def __init__(self, closures: FlowClosures, dx: float, n: int, *, bc="periodic", cfl=0.4,
-                 h_dry=1e-6, h_scale=1.0, n_substeps=4):
+                 h_dry=1e-6, h_scale=1.0, n_substeps=4, viscosity=0.0):
         if bc not in BCS:
             raise ValueError(f"bc = {bc!r} is unknown: allowed {list(BCS)}")
         if not 0 < cfl <= 0.5:
             raise ValueError(f"cfl = {cfl!r} is out of range: allowed (0, 0.5]")
+        if not (math.isfinite(viscosity) and viscosity >= 0):
+            raise ValueError(f"viscosity = {viscosity!r} is out of range: allowed [0, inf)")
+        self.nu = float(viscosity)
         self.c = closures
         self.dx = float(dx)
         self.n = int(n)
@@ -147,6 +163,14 @@ class ShallowLayerSolver:
         f1 = np.where(sL >= 0, f1L, np.where(sR <= 0, f1R, f1))
         f2 = np.where(sL >= 0, f2L, np.where(sR <= 0, f2R, f2))
         smax = float(np.max(np.maximum(np.abs(sL), np.abs(sR)))) if sL.size else 0.0
+        if self.nu > 0:
+            # depth-averaged viscous stress (Gray & Edwards 2014): face flux nu h^(3/2) du/dx
+            # from the cell averages, zero at a face with a dry side
+            hf = 0.5 * (hc[:-1] + hc[1:])
+            dry_face = (hc[:-1] <= self.h_dry) | (hc[1:] <= self.h_dry)
+            g = np.where(dry_face, 0.0, self.nu * hf * np.sqrt(hf) * (uc[1:] - uc[:-1])
+                         / self.dx)
+            f2 = f2 - g
         return -(f1[1:] - f1[:-1]) / self.dx, -(f2[1:] - f2[:-1]) / self.dx, smax
 
     def max_speed(self, h, m):
@@ -197,13 +221,19 @@ class ShallowLayerSolver:
 
     def stable_dt(self, h, m):
         s = self.max_speed(h, m)
-        return self.cfl * self.dx / s if s > 0 else math.inf
+        dt = self.cfl * self.dx / s if s > 0 else math.inf
+        if self.nu > 0:
+            # diffusive limit of the viscous term: du/dt ~ nu h^(1/2) d2u/dx2
+            diff = self.nu * math.sqrt(float(np.max(h))) if h.size else 0.0
+            if diff > 0:
+                dt = min(dt, self.cfl * self.dx * self.dx / diff)
+        return dt
 
 
 def shallow_layer(closures: FlowClosures, x, h0, u0, t_end: float, *, bc: str = "periodic",
                   times=None, n_out: int = 51, cfl: float = 0.4, h_dry: float = 1e-6,
                   check: bool = True, extrapolate: bool = False,
-                  max_steps: int = 10_000_000) -> xr.Dataset:
+                  max_steps: int = 10_000_000, viscosity: float = 0.0) -> xr.Dataset:
     """Solve Eq. (34) from h0(x), u0(x) on cell centres ``x`` (uniform spacing) to ``t_end``.
 
     ``bc``: ``periodic`` (domain length = n dx) or ``open``.  ``times``: output times (default
@@ -211,6 +241,9 @@ def shallow_layer(closures: FlowClosures, x, h0, u0, t_end: float, *, bc: str = 
     run the library's evaluators on the initial wet state (fitted range / (h, F) hull, unless
     ``extrapolate``).  Returns h(t, x), u_bar(t, x), mass(t) = sum h dx and, per output time,
     the fraction of wet cells whose (h, F) lie outside the closure's fitted ranges.
+    ``viscosity``: the coefficient nu of the depth-averaged viscous stress d(nu h^(3/2)
+    du/dx)/dx (module docstring; 0, the default: Eq. 34 without it; e.g.
+    ``closures.gray_edwards_viscosity(h_ref)``).
     """
     x = np.asarray(x, float)
     n = x.size
@@ -238,7 +271,8 @@ def shallow_layer(closures: FlowClosures, x, h0, u0, t_end: float, *, bc: str = 
         closures.check(h[wet], np.abs(u[wet]) / np.sqrt(gc * h[wet]), extrapolate=extrapolate)
     m = np.where(wet, h * u, 0.0)
     solver = ShallowLayerSolver(closures, dx, n, bc=bc, cfl=cfl, h_dry=h_dry,
-                                h_scale=float(h.max()) if h.max() > 0 else 1.0)
+                                h_scale=float(h.max()) if h.max() > 0 else 1.0,
+                                viscosity=viscosity)
     rng = closures.fitted_ranges()
     out_h, out_u, out_frac = [], [], []
     t, k, steps = 0.0, 0, 0
@@ -285,9 +319,11 @@ def shallow_layer(closures: FlowClosures, x, h0, u0, t_end: float, *, bc: str = 
                               "fitted ranges (NaN for synthetic closures)"))},
         coords={"t": ("t", times, U.cf(U.TIME, "time")),
                 "x": ("x", x, U.cf(U.LENGTH, "downslope position (cell centre)", axis="X"))})
-    ds.attrs.update(closures.attrs(), equation=EQ, bc=bc, cfl=cfl, dx=dx, h_dry=h_dry,
+    ds.attrs.update(closures.attrs(), equation=EQ if solver.nu == 0 else EQ + VISCOUS,
+                    bc=bc, cfl=cfl, dx=dx, h_dry=h_dry, viscosity=solver.nu,
                     n_steps=steps, n_cells_brought_to_rest=solver.n_rest,
-                    scheme="MUSCL-minmod + HLL, SSP-RK2, Strang-split RK4 friction")
+                    scheme="MUSCL-minmod + HLL, SSP-RK2, Strang-split RK4 friction"
+                    + ("" if solver.nu == 0 else ", central viscous fluxes"))
     return finish(ds, "shallow_layer", "shallow-layer solution (Eq. 34)",
                   "Depth-averaged granular flow h(x, t), u(x, t) from the shallow-layer "
                   "equations of Weinhart et al. 2012 Eq. 34 with closure relations.")
