@@ -106,6 +106,10 @@ README_COMMANDS = {
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_engine_threads.py --steps 5000 --repeat 5":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
+    ".venv/bin/python benchmarks/continuum_solver_checks.py":
+        ("tests/test_continuum.py::test_small_wave_with_viscosity_follows_the_linearised_equations",
+         "the script prints the numbers the fast tests of tests/test_continuum.py assert "
+         "(linearised decay rates, conservation, dam break) with tolerances"),
 }
 
 
