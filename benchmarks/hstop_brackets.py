@@ -23,7 +23,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from granflow.fitting.hstop import fit_hstop, hstop_intervals_from_runs, theta_stop_eq45
+from granflow.campaign.collect import engine_stop_without_flow_state
+from granflow.fitting.hstop import (ENGINE_STOP_NO_STATE, fit_hstop, hstop_intervals_from_runs,
+                                    theta_stop_eq45)
 from granflow.reference import paper_value
 
 POINT = re.compile(r"(?P<law>[A-Za-z_]+)/lambda~(?P<lam>[0-9.]+)/theta~(?P<theta>[0-9.]+)/"
@@ -39,13 +41,16 @@ def bracket_runs(*roots) -> pd.DataFrame:
                 m = POINT.search(f.as_posix())
                 if not m:
                     continue
-                state = json.loads(f.read_text())["flow_state"]
+                summ = json.loads(f.read_text())
+                # an engine stop before any flow state is no evidence (as in the library's fit)
+                stop = ENGINE_STOP_NO_STATE if engine_stop_without_flow_state(summ) else ""
                 runs[f.relative_to(root).as_posix()] = {
-                    "theta": float(m["theta"]), "H": float(m["H"]), "state": state,
+                    "theta": float(m["theta"]), "H": float(m["H"]), "state": summ["flow_state"],
                     "replicate": int(m["seed"] or 0), "lambda": float(m["lam"]),
-                    "contact_law": m["law"]}
+                    "contact_law": m["law"], "stop_reason": stop}
     return pd.DataFrame(list(runs.values()),
-                        columns=["theta", "H", "state", "replicate", "lambda", "contact_law"])
+                        columns=["theta", "H", "state", "replicate", "lambda", "contact_law",
+                                 "stop_reason"])
 
 
 def _paper_table():

@@ -79,6 +79,60 @@ def test_chain_state_machine_proposes_bracket_runs(tmp_path):
     assert run_params({"numerics": {"seed": 5}, "campaigns": {"chute": {}}}, p)["seed"] == 7
 
 
+def test_engine_stop_before_any_flow_state_stops_the_chain_and_enters_no_bracket(tmp_path):
+    """A bracket run that the engine's overlap guard ends while the layer still falls in (no
+    flow state yet: measured on soft t_c = 0.02 layers of H = 20, stopped at t = 6.7-8.1) is no
+    evidence: the chain records it as failed and stops, instead of counting it as flowing and
+    walking down (it had reached 7.28 deg, and the hstop fit's delta1 went to 0).  A run the
+    guard stops after it was seen flowing still counts as flowing (a fast flow on a fine base)."""
+    import json
+
+    cfg = {"prior": TRUE, "step": 1.0, "tolerance": 0.5, "max_runs": 6}
+    st = HS.init_bisection("linear", 1.0, 20.0, cfg)
+    p = HS.bisection_next_point(st)
+    fall = {"flow_state": "undecided", "engine_stop": "overlap 0.0512 exceeds 5% ...",
+            "flow_state_before_engine_stop": "undecided"}
+    (tmp_path / "a.json").write_text(json.dumps(fall))
+    st = HS.bisection_step(st, tmp_path / "a.json", p.path)
+    assert st["last"]["flow_state"] == "failed" and st["bisection"]["next"] is None
+    assert "before it had a flow state" in st["bisection"]["note"]
+    b = Bisection.from_state_dict(st["bisection"])
+    assert (b.theta_arrested, b.theta_flowing) == (-math.inf, math.inf)
+    # an older summary without the field: the state named in the classification decides
+    old = {"flow_state": "undecided", "engine_stop": "overlap",
+           "classification": "undecided: the engine stopped the run at t = 8 (overlap); until "
+                             "then the classifier said undecided: too few samples"}
+    seen = dict(old, classification=old["classification"].replace(
+        "said undecided: too few samples", "said accelerating: ratio grows"))
+    for summ, expect in ((old, "failed"), (seen, "undecided"),
+                         (dict(fall, flow_state_before_engine_stop="steady"), "undecided")):
+        st = HS.init_bisection("linear", 1.0, 20.0, cfg)
+        (tmp_path / "b.json").write_text(json.dumps(summ))
+        st = HS.bisection_step(st, tmp_path / "b.json", HS.bisection_next_point(st).path)
+        assert st["last"]["flow_state"] == expect
+        if expect != "failed":  # flowing: the chain steps down
+            assert st["bisection"]["next"] < p.theta
+
+
+def test_hstop_intervals_leave_out_runs_without_a_flow_state():
+    """Campaign-table rows stopped by an engine guard before any flow state are left out of
+    the hstop brackets; an engine stop after the run was seen flowing stays flowing."""
+    import pandas as pd
+
+    from granflow.fitting.hstop import ENGINE_STOP_NO_STATE, hstop_intervals_from_runs
+
+    t = pd.DataFrame({"theta": [22.0, 23.0, 7.28, 28.0], "H": [20.0] * 4,
+                      "state": ["arrested", "steady", "undecided", "undecided"],
+                      "stop_reason": ["arrested", "steady", ENGINE_STOP_NO_STATE,
+                                      "engine guard"]})
+    iv = hstop_intervals_from_runs(t)
+    assert (iv.theta_arrested_max[0], iv.theta_flowing_min[0]) == (22.0, 23.0)
+    iv2 = hstop_intervals_from_runs(t.assign(stop_reason="engine guard"))
+    # counting it as flowing would invert the bracket into [7.28, 22]
+    assert (iv2.theta_arrested_max[0], iv2.theta_flowing_min[0], iv2.inverted[0]) == \
+        (7.28, 22.0, True)
+
+
 def _feed(mon, t, ratio):
     for ti, ri in zip(t, ratio):
         mon.update(ti, ri, 1.0, 1.0)

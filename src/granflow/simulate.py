@@ -29,9 +29,12 @@ whose contacts leave the range its species was validated for (an overlap above `
 by default 5 %, of the smallest diameter: too soft for the load, e.g. a fast flow on a base of
 half-size particles) is
 not a result.  It ends there with its outputs written and flow state ``undecided`` (left out of
-every fit, listed in ``excluded_runs.csv``; flowing for an hstop bracket), ``engine_stop`` naming
-the guard, and what the classifier said until then in the explanation, instead of failing the
-whole campaign.  Rerunning the same command resumes from the checkpoint and stops identically.
+every fit, listed in ``excluded_runs.csv``), ``engine_stop`` naming the guard, what the
+classifier said until then in the explanation and in ``flow_state_before_engine_stop``, instead
+of failing the whole campaign.  For an hstop bracket it is flowing only if the classifier had
+seen it flow (steady, accelerating, ...) before the stop; a run stopped before it had any flow
+state (an impact while the layer falls in) is no evidence either way: the hstop fit leaves it
+out and a bisection chain stops at it (:data:`granflow.campaign.collect.ENGINE_STOP_NO_STATE`).  Rerunning the same command resumes from the checkpoint and stops identically.
 
 All outputs are written atomically; the checkpoint is removed only after they exist.
 """
@@ -778,7 +781,9 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
     final = monitor_obs.final()
     seg = seg_obs.final() if seg_obs is not None else None
     t_now = run.system.time
+    state_before_stop = None
     if engine_stop is not None:
+        state_before_stop = str(final["flow_state"])
         final = dict(final, flow_state="undecided", steady_start=math.nan, confidence=0.0,
                      explanation=(f"undecided: the engine stopped the run at t = {t_now:.6g} "
                                   f"({engine_stop}); until then the classifier said "
@@ -804,6 +809,7 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
     attrs.update(extra_attrs or {})
     if engine_stop is not None:
         attrs["engine_stop"] = engine_stop
+        attrs["flow_state_before_engine_stop"] = state_before_stop
     if seg is not None:
         attrs.update(segregation_state="steady" if seg["steady"] else "drifting",
                      segregation_onset=seg["onset"], segregation_explanation=seg["message"])
@@ -844,6 +850,7 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
         summary["parent"] = dict(parent)
     if engine_stop is not None:
         summary["engine_stop"] = engine_stop
+        summary["flow_state_before_engine_stop"] = state_before_stop
     if extra_attrs:
         summary["engine"] = dict(extra_attrs)
     where = f"theta = {p['theta']:g} deg, H = {p['H']:g}, lambda = {p['lam']:g}" + (

@@ -12,7 +12,9 @@ concatenates rows into the table (netCDF with CF attributes + CSV).
 Runs whose state is ``undecided`` (the cap was reached before the classifier could decide)
 enter the table with that state: the hstop fit counts them as *flowing* (the paper's binary
 arrested/flowing rule, §6), the fits that need steady flow leave them out, and every closure
-says so (its ``selection``).  A run whose summary has no known state at all is listed, with
+says so (its ``selection``).  A run that an engine guard ended before it had any flow state
+(stop reason ``engine guard before any flow state``, :func:`engine_stop_without_flow_state`)
+is no evidence for hstop either way and is left out of its brackets.  A run whose summary has no known state at all is listed, with
 the reason, in ``excluded_runs.csv`` instead.
 
 Per-run uncertainties: ``<col>_sem`` is the standard error of the run's mean from its
@@ -33,6 +35,7 @@ import pandas as pd
 from .. import units as U
 from ..fitting.table import (COLUMN_ATTRS, FLOW_STATES, MEASURED_COLUMNS, STRING_COLUMNS,
                              campaign_table_from_records)
+from ..fitting.hstop import ENGINE_STOP_NO_STATE
 from ..provenance import atomic_to_netcdf, atomic_write_bytes
 from .grid import parse_run_path
 from .serialize import dumps, fit_from_dict, fit_to_dict, from_jsonable
@@ -57,6 +60,25 @@ EXTRA_ATTRS = {
                                        "empty for monodisperse runs)"},
     "replicate": U.cf(U.DIMENSIONLESS, "replicate index k of the run point (insertion seed + k)"),
 }
+
+
+#: flow states that show a run flowing (granflow.steady.classify), before an engine stop
+_SEEN_FLOWING = ("steady", "accelerating", "layered", "oscillating", "flowing")
+
+
+def engine_stop_without_flow_state(summary: dict) -> bool:
+    """True for a run that an engine guard ended before the classifier had seen it flow
+    (``flow_state_before_engine_stop`` not a flowing state; older summaries: the state named in
+    the classification, "... until then the classifier said <state>: ...").  Such a run is no
+    evidence for hstop: neither arrested nor flowing."""
+    if not summary.get("engine_stop"):
+        return False
+    before = summary.get("flow_state_before_engine_stop")
+    if before is None:
+        text = str(summary.get("classification", ""))
+        key = "until then the classifier said "
+        before = text.split(key, 1)[1].split(":", 1)[0].strip() if key in text else "undecided"
+    return str(before) not in _SEEN_FLOWING
 
 
 def _f(x):
@@ -267,7 +289,8 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
     seg_state = (summ.get("segregation") or {}).get("steady")
     row.update(kind=point.kind, run=point.path, mu_bar=_f(avg.get("mu_bar")),
                t_final=_f(summ.get("t_final")), steady_start=_f(summ.get("steady_start")),
-               stop_reason=str(summ.get("stop_reason", "")).split(":")[0],
+               stop_reason=(ENGINE_STOP_NO_STATE if engine_stop_without_flow_state(summ)
+                            else str(summ.get("stop_reason", "")).split(":")[0]),
                n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")),
                segregation_state="" if seg_state is None else
                ("steady" if seg_state else "drifting"), replicate=float(point.replicate))

@@ -185,7 +185,7 @@ def bisection_parent(state: dict) -> RunPoint | None:
     if nxt is None:
         return None
     above = [float(t) for t, s in state["bisection"]["runs"]
-             if s != "arrested" and float(t) > nxt.theta + 1e-9]
+             if s not in ("arrested", "failed") and float(t) > nxt.theta + 1e-9]
     if not above:
         return None
     return RunPoint("bracket", state["law"], float(state["lam"]), min(above), float(state["H"]),
@@ -203,8 +203,14 @@ def bisection_step(state: dict, run_summary_path, run_rel: str | None = None) ->
         got = parse_run_path(run_rel)
         if got != point:
             raise ValueError(f"run {run_rel} is not the proposed point {point.path}")
+    from .collect import engine_stop_without_flow_state
+    from ..steady.bisection import FAILED
+
     with open(run_summary_path) as fh:
-        flow_state = json.load(fh)["flow_state"]
+        summary = json.load(fh)
+    flow_state = summary["flow_state"]
+    if engine_stop_without_flow_state(summary):  # no evidence either way: the chain stops
+        flow_state = FAILED
     b = Bisection.from_state_dict(state["bisection"])
     b.record(point.theta, flow_state)
     return {"law": state["law"], "lam": state["lam"], "H": state["H"],

@@ -33,7 +33,7 @@ import pandas as pd
 
 from .bulk import fit_bulk_density, fit_stress_ratio
 from .flow_rule import fit_flow_rule, friction_closure
-from .hstop import fit_hstop, fit_hstop_eq38, hstop_eq45
+from .hstop import ENGINE_STOP_NO_STATE, fit_hstop, fit_hstop_eq38, hstop_eq45
 from .result import FitResult, failed_fit
 from .segregation import fit_Ps_law
 from .shape_factor import fit_alpha
@@ -169,10 +169,15 @@ def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 20
         hstops = {}
         for lam in lams:
             runs = select_runs(mono, lam=lam)
-            n_und = int((runs["state"] == "undecided").sum())
+            no_state = (runs["stop_reason"].astype(str) == ENGINE_STOP_NO_STATE
+                        if "stop_reason" in runs.columns else np.zeros(len(runs), bool))
+            n_und = int(((runs["state"] == "undecided") & ~no_state).sum())
             sel = (f"hstop brackets at lambda = {lam:g}, contact law {law}: all {len(runs)} "
                    f"monodisperse runs (H = {_range(runs['H'])}), arrested vs flowing; "
                    f"{UNDECIDED_TREATMENT['hstop']} ({n_und} such runs)")
+            if int(no_state.sum()):
+                sel += (f"; {int(no_state.sum())} runs ended by an engine guard before they had "
+                        f"a flow state are left out (no evidence either way)")
             for fn in ((fit_hstop, fit_hstop_eq38) if include_eq38 else (fit_hstop,)):
                 r = fn(runs=runs, lam=lam, contact_law=law, n_bootstrap=n_bootstrap, seed=seed)
                 r = r.replace(runs_used=tuple(_ids(runs)), selection=sel)

@@ -48,6 +48,10 @@ INTERVAL_COLUMNS = ("H", "theta_arrested_max", "theta_flowing_min")
 #: when E_kin/E_ela falls below 1e-5, otherwise flowing -- including runs left "undecided" at
 #: their cap, which did not arrest)
 FLOWING_STATES = ("steady", "accelerating", "layered", "oscillating", "undecided", "flowing")
+#: ``stop_reason`` of a campaign-table row whose run an engine guard ended before the classifier
+#: had any flow state (e.g. an overlap on impact while a soft layer falls in): no evidence of
+#: flowing or arresting, left out of the hstop intervals (its state stays ``undecided``)
+ENGINE_STOP_NO_STATE = "engine guard before any flow state"
 #: optimiser bounds of (delta1, delta2 - delta1, A)
 _LOWER = (0.0, 1e-3, 1e-6)
 _UPPER = (89.0, 60.0, 1e5)
@@ -119,6 +123,9 @@ def hstop_intervals_from_runs(theta, H=None, state=None, replicate=None) -> pd.D
     outcome), the two are swapped so the interval still brackets the demarcation; ``n_inverted``
     counts them.
 
+    A frame with a ``stop_reason`` column: rows stopped by an engine guard before they had any
+    flow state (:data:`ENGINE_STOP_NO_STATE`) are left out; they say nothing about arrest.
+
     Replicates (insertion seed + k, column ``replicate``) bracket their own arrest: each
     (H, replicate) gets its own interval, so that k chains at one height are k data for the fit
     and its bootstrap, and their scatter enters the fit's error, instead of one interval widened
@@ -127,6 +134,8 @@ def hstop_intervals_from_runs(theta, H=None, state=None, replicate=None) -> pd.D
     """
     if isinstance(theta, pd.DataFrame):
         frame = theta
+        if "stop_reason" in frame.columns:
+            frame = frame[frame["stop_reason"].astype(str) != ENGINE_STOP_NO_STATE]
         theta, H, state = frame["theta"].to_numpy(float), frame["H"].to_numpy(float), frame["state"].to_numpy()
         if "replicate" in frame.columns:
             replicate = frame["replicate"].to_numpy(float)

@@ -14,7 +14,9 @@ theta_stop(H) at one H by
 
 and stops after ``max_runs``.  Chains at different heights run concurrently (one Snakemake
 checkpoint chain each).  States are binary as in the paper: every state but ``arrested`` is
-flowing.  An outcome that contradicts monotonicity at this height (an arrest above a flowing
+flowing, except ``failed`` -- a run that an engine guard ended before it had any flow state (an
+overlap on impact while a soft layer falls in): it is neither, and the chain stops there with a
+note (every angle of that height would fall the same way; the species is too soft for it).  An outcome that contradicts monotonicity at this height (an arrest above a flowing
 angle, as happens with run-to-run noise right at the demarcation) is kept: the bracket is then
 [max arrested, min flowing] swapped and flagged ``consistent = False``, and the chain stops.
 Angles are rounded to ``resolution`` so that run directories stay readable.
@@ -25,6 +27,8 @@ from __future__ import annotations
 import math
 
 _EPS = 1e-9
+#: state of a run that gives no flow state (see the module docstring)
+FAILED = "failed"
 
 
 class Bisection:
@@ -60,7 +64,7 @@ class Bisection:
 
     @property
     def theta_flowing(self) -> float:
-        f = [t for t, s in self.runs if s != "arrested"]
+        f = [t for t, s in self.runs if s not in ("arrested", FAILED)]
         return min(f) if f else math.inf
 
     @property
@@ -86,6 +90,10 @@ class Bisection:
             return None
         if not self.runs:
             return self.theta_guess
+        if self.runs[-1][1] == FAILED:
+            self.note = (f"the run at theta = {self.runs[-1][0]:g} ended (engine guard) before it "
+                         f"had a flow state: no bracket from it")
+            return None
         if not self.consistent:
             self.note = "outcomes contradict monotonicity at this height (noise at the demarcation)"
             return None
@@ -115,7 +123,8 @@ class Bisection:
         return min(nxt, self.theta_max)
 
     def record(self, theta: float, state: str) -> None:
-        """Record the flow state of the run at ``theta`` (any state but "arrested" flows)."""
+        """Record the flow state of the run at ``theta`` (any state but "arrested" and
+        "failed" flows)."""
         self.runs.append((self._round(float(theta)), str(state)))
 
     # ---------------------------------------------------------------- state
