@@ -135,3 +135,35 @@ def test_is_flowing():
     assert is_flowing(True) and not is_flowing(False)
     with pytest.raises(TypeError):
         is_flowing(3)
+
+
+def test_a_run_without_a_flow_state_ends_the_walk_and_enters_no_interval(tmp_path):
+    """A run that an engine guard stopped before it had any flow state (an impact while the
+    layer fell in) is no evidence: the paper's walk ends there, without recording it, instead
+    of taking it as flowing and stepping the angle down (issue 14, as the bisection chains)."""
+    import json
+
+    from granflow.campaign import hstop as HS
+
+    s = HstopSearch()
+    s.record(21.0, 4.0, "arrested")
+    s.record(22.0, 4.0, "steady")
+    s.record(21.5, 4.0, "arrested")
+    with pytest.raises(ValueError):
+        s.record_failed(30.0, 6.0)
+    s.record_failed(21.5, 6.0, "overlap")
+    assert s.done and s.next_point() is None and "no flow state (overlap)" in s.done_reason
+    assert len(s.runs) == 3 and s.intervals() == [(4.0, 21.5, 22.0)]
+    again = HstopSearch.from_state_dict(s.state_dict())
+    assert again.done and again.done_reason == s.done_reason
+    # through the campaign's step: the summary's engine stop decides
+    st = HS.init_state("linear", 1.0, {})
+    for th, state in ((21.0, "arrested"), (22.0, "steady")):
+        (tmp_path / "s.json").write_text(json.dumps({"flow_state": state}))
+        st = HS.step_state(st, tmp_path / "s.json")
+    (tmp_path / "s.json").write_text(json.dumps({
+        "flow_state": "undecided", "engine_stop": "overlap 0.05",
+        "flow_state_before_engine_stop": "undecided"}))
+    st = HS.step_state(st, tmp_path / "s.json")
+    assert st["last"]["flow_state"] == "failed" and HS.next_point(st) is None
+    assert len(HS.search_runs(st)) == 2

@@ -48,10 +48,17 @@ def step_state(state: dict, run_summary_path, run_rel: str | None = None) -> dic
         if (abs(got.theta - point.theta) > 1e-9 or abs(got.H - point.H) > 1e-9
                 or got.law != point.law or abs(got.lam - point.lam) > 1e-9):
             raise ValueError(f"run {run_rel} is not the proposed point {point.path}")
+    from .collect import engine_stop_without_flow_state
+
     with open(run_summary_path) as fh:
-        flow_state = json.load(fh)["flow_state"]
+        summary = json.load(fh)
+    flow_state = summary["flow_state"]
     search = HstopSearch.from_state_dict(state["search"])
-    search.record(point.theta, point.H, flow_state)
+    if engine_stop_without_flow_state(summary):  # no evidence either way: the walk ends
+        flow_state = "failed"
+        search.record_failed(point.theta, point.H, f"engine guard: {summary['engine_stop']}")
+    else:
+        search.record(point.theta, point.H, flow_state)
     return {"law": state["law"], "lam": state["lam"], "step": int(state["step"]) + 1,
             "search": search.state_dict(),
             "last": {"theta": point.theta, "H": point.H, "flow_state": flow_state,

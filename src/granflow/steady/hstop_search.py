@@ -147,6 +147,19 @@ class HstopSearch:
         self._next = nxt
         return self._next
 
+    def record_failed(self, theta: float, H: float, why: str = "") -> None:
+        """The run at the proposed (theta, H) gave no flow state (an engine guard stopped it
+        before the classifier had one, e.g. an overlap on impact while the layer fell in): it is
+        no evidence either way and is not recorded; the walk ends here (every later point would
+        rest on it) with the reason in ``done_reason``."""
+        if self._next is None:
+            raise RuntimeError("the search is finished")
+        theta, H = float(theta), float(H)
+        if abs(theta - self._next[0]) > _EPS or abs(H - self._next[1]) > _EPS:
+            raise ValueError(f"expected a result for {self._next}, got ({theta}, {H})")
+        self._next = self._finish(f"the run at theta = {theta:g}, H = {H:g} gave no flow state"
+                                  + (f" ({why})" if why else ""))
+
     def implied_state(self, theta: float, H: float) -> bool | None:
         """Outcome at (theta, H) implied by monotonicity from the simulated runs: True (flowing),
         False (arrested) or None (unknown, or the runs contradict each other there)."""
