@@ -14,8 +14,8 @@ enter the table with that state: the hstop fit counts them as *flowing* (the pap
 arrested/flowing rule, §6), the fits that need steady flow leave them out, and every closure
 says so (its ``selection``).  A run that an engine guard ended before it had any flow state
 (stop reason ``engine guard before any flow state``, :func:`engine_stop_without_flow_state`)
-is no evidence for hstop either way and is left out of its brackets.  A run whose summary has no known state at all is listed, with
-the reason, in ``excluded_runs.csv`` instead.
+is no evidence for hstop either way and is left out of its brackets.  A run whose summary has
+no known state at all is listed, with the reason, in ``excluded_runs.csv`` instead.
 
 Per-run uncertainties: ``<col>_sem`` is the standard error of the run's mean from its
 decorrelated time windows (:func:`granflow.steady.timeseries.standard_error_of_mean`); for Ps it
@@ -33,10 +33,11 @@ import numpy as np
 import pandas as pd
 
 from .. import units as U
+from ..fitting.hstop import ENGINE_STOP_NO_STATE
 from ..fitting.table import (COLUMN_ATTRS, FLOW_STATES, MEASURED_COLUMNS, STRING_COLUMNS,
                              campaign_table_from_records)
-from ..fitting.hstop import ENGINE_STOP_NO_STATE
 from ..provenance import atomic_to_netcdf, atomic_write_bytes
+from ..steady.classify import FLOWING_STATES as CLASSIFIED_FLOWING
 from .grid import parse_run_path
 from .serialize import dumps, fit_from_dict, fit_to_dict, from_jsonable
 
@@ -62,8 +63,9 @@ EXTRA_ATTRS = {
 }
 
 
-#: flow states that show a run flowing (granflow.steady.classify), before an engine stop
-_SEEN_FLOWING = ("steady", "accelerating", "layered", "oscillating", "flowing")
+#: flow states that show a run flowing before an engine stop (the classifier's, and the
+#: bracket runs' "flowing")
+_SEEN_FLOWING = CLASSIFIED_FLOWING + ("flowing",)
 
 
 def engine_stop_without_flow_state(summary: dict) -> bool:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 
 from ..provenance import atomic_write_bytes
+from ..steady.bisection import FAILED
 from ..steady.hstop_search import HstopSearch
 from .grid import RunPoint, parse_run_path
 
@@ -38,6 +39,18 @@ def next_point(state: dict) -> RunPoint | None:
     return RunPoint("chute", state["law"], float(state["lam"]), float(nxt[0]), float(nxt[1]))
 
 
+def _read_flow_state(run_summary_path) -> tuple[dict, str]:
+    """(summary, flow state) of a finished run for an hstop chain: FAILED for a run that an
+    engine guard ended before it had any flow state (no evidence either way)."""
+    from .collect import engine_stop_without_flow_state
+
+    with open(run_summary_path) as fh:
+        summary = json.load(fh)
+    if engine_stop_without_flow_state(summary):
+        return summary, FAILED
+    return summary, summary["flow_state"]
+
+
 def step_state(state: dict, run_summary_path, run_rel: str | None = None) -> dict:
     """Record the flow state of the run at the proposed point; return the next state."""
     point = next_point(state)
@@ -48,14 +61,9 @@ def step_state(state: dict, run_summary_path, run_rel: str | None = None) -> dic
         if (abs(got.theta - point.theta) > 1e-9 or abs(got.H - point.H) > 1e-9
                 or got.law != point.law or abs(got.lam - point.lam) > 1e-9):
             raise ValueError(f"run {run_rel} is not the proposed point {point.path}")
-    from .collect import engine_stop_without_flow_state
-
-    with open(run_summary_path) as fh:
-        summary = json.load(fh)
-    flow_state = summary["flow_state"]
+    summary, flow_state = _read_flow_state(run_summary_path)
     search = HstopSearch.from_state_dict(state["search"])
-    if engine_stop_without_flow_state(summary):  # no evidence either way: the walk ends
-        flow_state = "failed"
+    if flow_state == FAILED:  # no evidence either way: the walk ends
         search.record_failed(point.theta, point.H, f"engine guard: {summary['engine_stop']}")
     else:
         search.record(point.theta, point.H, flow_state)
@@ -192,7 +200,7 @@ def bisection_parent(state: dict) -> RunPoint | None:
     if nxt is None:
         return None
     above = [float(t) for t, s in state["bisection"]["runs"]
-             if s not in ("arrested", "failed") and float(t) > nxt.theta + 1e-9]
+             if s not in ("arrested", FAILED) and float(t) > nxt.theta + 1e-9]
     if not above:
         return None
     return RunPoint("bracket", state["law"], float(state["lam"]), min(above), float(state["H"]),
@@ -210,14 +218,7 @@ def bisection_step(state: dict, run_summary_path, run_rel: str | None = None) ->
         got = parse_run_path(run_rel)
         if got != point:
             raise ValueError(f"run {run_rel} is not the proposed point {point.path}")
-    from .collect import engine_stop_without_flow_state
-    from ..steady.bisection import FAILED
-
-    with open(run_summary_path) as fh:
-        summary = json.load(fh)
-    flow_state = summary["flow_state"]
-    if engine_stop_without_flow_state(summary):  # no evidence either way: the chain stops
-        flow_state = FAILED
+    _, flow_state = _read_flow_state(run_summary_path)  # FAILED: the chain stops
     b = Bisection.from_state_dict(state["bisection"])
     b.record(point.theta, flow_state)
     return {"law": state["law"], "lam": state["lam"], "H": state["H"],

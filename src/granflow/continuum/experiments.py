@@ -876,6 +876,18 @@ def main(argv=None):
     return 0
 
 
+def _long_chute_lines(title: str, lc: dict) -> list[str]:
+    """A long-chute comparison as table lines (distances travelled, particles vs solver)."""
+    lines = ["", title, f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} "
+                        f"{'front_s':>8} {'err':>7}"]
+    for r in lc["rows"]:
+        lines.append(f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
+                     f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
+                     f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
+                     f"{r['front_err']:+7.1%}")
+    return lines
+
+
 def format_tables(res: dict) -> str:
     """The comparison tables as plain text (the report's must-show tables)."""
     lines = ["closure status: " + ", ".join(f"{k} {'/'.join(v)}"
@@ -896,27 +908,14 @@ def format_tables(res: dict) -> str:
             + ("  (extrapolated)" if s.get("extrapolated") else ""))
     lc = res.get("long_chute")
     if lc:
-        lines += ["", "long chute (distance travelled, particles vs solver)",
-                  f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} {'front_s':>8}"
-                  f" {'err':>7}"]
-        for r in lc["rows"]:
-            lines.append(f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
-                         f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
-                         f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
-                         f"{r['front_err']:+7.1%}")
+        lines += _long_chute_lines("long chute (distance travelled, particles vs solver)", lc)
     lv = res.get("long_chute_viscous")
     if lv and "error" in lv:
         lines += ["", f"long chute with the viscous stress: {lv['error']}"]
     elif lv:
-        lines += ["", f"long chute with the Gray-Edwards viscous stress (nu = "
-                      f"{lv['viscosity']:.3f} at the mean depth {lv['h_mean']:.2f})",
-                  f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} {'front_s':>8}"
-                  f" {'err':>7}"]
-        for r in lv["rows"]:
-            lines.append(f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
-                         f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
-                         f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
-                         f"{r['front_err']:+7.1%}")
+        lines += _long_chute_lines(f"long chute with the Gray-Edwards viscous stress (nu = "
+                                   f"{lv['viscosity']:.3f} at the mean depth "
+                                   f"{lv['h_mean']:.2f})", lv)
     lines += ["", "segregation (half-time after the start-up, final profile rms)",
               f"{'sigma':>5} {'t_half_p':>8} {'sym':>14} {'err':>7} {'asym':>14} {'err':>7} "
               f"{'rms_sym':>7} {'rms_asym':>8} {'D':>8} {'Ps':>6}"]
