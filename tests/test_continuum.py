@@ -250,8 +250,12 @@ def test_gray_edwards_viscosity_is_their_closed_form():
         c.gray_edwards_viscosity(-1.0)
     with pytest.raises(ValueError, match="no steady flow"):
         eq50(18.0).gray_edwards_viscosity(2.0)        # arrested there
-    with pytest.raises(ValueError, match="viscosity"):
-        shallow_layer(c, np.arange(8) + 0.5, 8.0, 1.0, 1.0, viscosity=-1.0)
+    for bad, why in ((-1.0, "out of range: allowed \\[0.0, inf\\)"), (math.inf, "out of range"),
+                     (math.nan, "out of range"), ("abc", "not a number"), (None, "not a number")):
+        with pytest.raises(ValueError, match=f"viscosity = .* {why}"):
+            shallow_layer(c, np.arange(8) + 0.5, 8.0, 1.0, 1.0, viscosity=bad)
+    with pytest.raises(ValueError, match="cfl = 'x' is not a number"):
+        shallow_layer(c, np.arange(8) + 0.5, 8.0, 1.0, 1.0, cfl="x")
 
 
 @pytest.mark.parametrize("theta, delta", [(30.0, 20.0), (35.0, 25.0)])

@@ -63,6 +63,7 @@ import numpy as np
 import xarray as xr
 
 from .. import units as U
+from ..engine.species import check_range
 from .closures import FlowClosures
 from .output import finish
 
@@ -108,11 +109,9 @@ class ShallowLayerSolver:
                  h_dry=1e-6, h_scale=1.0, n_substeps=4, viscosity=0.0):
         if bc not in BCS:
             raise ValueError(f"bc = {bc!r} is unknown: allowed {list(BCS)}")
-        if not 0 < cfl <= 0.5:
-            raise ValueError(f"cfl = {cfl!r} is out of range: allowed (0, 0.5]")
-        if not (math.isfinite(viscosity) and viscosity >= 0):
-            raise ValueError(f"viscosity = {viscosity!r} is out of range: allowed [0, inf)")
-        self.nu = float(viscosity)
+        # a string or None is named too (not Python's TypeError from a comparison)
+        cfl = check_range("cfl", cfl, 0.0, 0.5, lo_open=True)
+        self.nu = check_range("viscosity", viscosity, 0.0, math.inf, hi_open=True)
         self.c = closures
         self.dx = float(dx)
         self.n = int(n)
