@@ -234,3 +234,49 @@ def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_pa
     assert np.allclose(iv_half["paper_offset"], 0.0, atol=0.006)
     half = {r["parameter"]: r for r in tables[("linear", 0.5)][2]}
     assert half["delta1"]["paper"] == 17.913 and half["delta1"]["agrees"], half
+
+
+def test_hstop_staircase_carries_each_state_to_the_next_run(tmp_path, monkeypatch):
+    """benchmarks/hstop_staircase.py (the paper's §6 walk with carried-over state), with the
+    simulation replaced by a known hstop curve: flowing iff H >= 4 + 4 (21 - theta) / 0.5.
+    The walk is the paper's (21 deg flowing at H = 4, lower theta by 1/2 while flowing, add 2
+    particle heights after an arrest), the first run is a fresh fall, every angle step restarts
+    the previous run's state tilted and every height step tops it up, and the intervals are
+    those of the curve; a rerun reuses the finished runs and simulates nothing."""
+    import json
+
+    import granflow.simulate as gsim
+
+    st = _load("hstop_staircase")
+    calls = []
+
+    def fake_simulate(params, out_dir, base_file=None, threads=1, from_state=None,
+                      top_up=False):
+        theta, H = params["theta"], params["H"]
+        calls.append((theta, H, None if from_state is None else Path(from_state).parent.name,
+                      top_up))
+        assert params["stop_when_flowing"] is False and params["t_end"] <= 500.0  # horizon
+        flowing = H >= 4 + 4 * (21 - theta) / 0.5 - 1e-9
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "summary.json").write_text(json.dumps(dict(
+            flow_state="steady" if flowing else "arrested", t_final=100.0,
+            parent={"topped_up": 50} if top_up else {})))
+        return {}
+
+    monkeypatch.setattr(gsim, "simulate", fake_simulate)
+    monkeypatch.setattr(gsim, "prepare_base_file", lambda *a, **k: None)
+    args = ["--lam", "0.5", "--out", str(tmp_path / "out"), "--H-max", "12"]
+    search = st.main(args)
+    walk = [(t, H) for t, H, _, _ in calls]
+    assert walk == [(21.0, 4.0), (20.5, 4.0), (20.5, 6.0), (20.5, 8.0), (20.0, 8.0),
+                    (20.0, 10.0), (20.0, 12.0), (19.5, 12.0)]
+    # fresh fall, then: tilt (angle step, same H), top-up (height step, same angle)
+    assert calls[0][2:] == (None, False)
+    for (t0, H0, _, _), (t1, H1, parent, top) in zip(calls, calls[1:]):
+        assert parent == f"H~{H0:g}" and top == (H1 > H0)
+        assert (t1 == t0) == (H1 > H0)
+    assert search.intervals() == [(4.0, 20.5, 21.0), (6.0, 20.5, 21.0), (8.0, 20.0, 20.5),
+                                  (10.0, 20.0, 20.5), (12.0, 19.5, 20.0)]
+    calls.clear()
+    again = st.main(args)
+    assert calls == [] and again.runs == search.runs

@@ -120,3 +120,93 @@ def test_from_if_steady_restarts_only_from_a_steady_parent(parent, tmp_path, par
     for key in ("pos", "vel", "omega"):
         assert np.array_equal(child[key], ref[key]), key
     assert fresh["t_final"] == summary["t_final"]
+
+
+# --------------------------------------------------------------------------- top-up (staircase)
+def _by_identity(system):
+    order = system.id_order()
+    return {k: np.array(getattr(system, k)[order]) for k in ("pos", "vel", "omega", "radius",
+                                                              "mass", "fixed", "ptype")}
+
+
+def _pair_history(system):
+    """{(identity i, identity j): tangential spring} of the listed pairs with a spring."""
+    ids = system.ids
+    out = {}
+    for p in range(len(system.pi)):
+        if np.any(system.hist_t[p] != 0.0):
+            a, b = int(ids[system.pi[p]]), int(ids[system.pj[p]])
+            out[(min(a, b), max(a, b))] = system.hist_t[p].copy()
+    return out
+
+
+def test_top_up_keeps_every_particle_and_contact(parent):
+    """`ParticleSystem.add_particles` via `top_up_flow` (the staircase's 2 more particle
+    heights): the exact number of missing particles is added, at rest, above the old flow;
+    every old particle keeps its state bit for bit (by identity), every contact spring is
+    carried over unchanged and the elastic energy of the state is unchanged (the new
+    particles touch nothing)."""
+    from granflow.engine.chute import ChuteConfig, top_up_flow
+    from granflow.engine.system import ParticleSystem
+    from granflow.simulate import chute_config, validate_params
+
+    system, _ = ParticleSystem.load(parent / "parent" / "final_state.npz")
+    before = _by_identity(system)
+    springs = _pair_history(system)
+    reference, _ = ParticleSystem.load(parent / "parent" / "final_state.npz")
+    reference.compute_forces()  # the unchanged state's forces, as the top-up evaluates them
+    nm0 = int((~system.fixed).sum())  # flow particles before
+    cfg = chute_config(validate_params(dict(BASE, theta=26.0, H=5.0)))
+    added = top_up_flow(system, cfg)
+    assert added == round(5.0 * 6.0 * 4.0) - round(3.0 * 6.0 * 4.0) == 48
+    assert system.n == len(before["pos"]) + added
+    after = _by_identity(system)
+    # identities: old flow 0..nm0-1, new nm0..nm0+k-1, then the base
+    old = np.r_[0:nm0, nm0 + added:system.n]
+    for key, value in before.items():
+        assert np.array_equal(after[key][old], value), key
+    new = slice(nm0, nm0 + added)
+    assert not after["fixed"][new].any() and np.all(after["radius"][new] == 0.5)
+    assert np.all(after["vel"][new] == 0.0) and np.all(after["omega"][new] == 0.0)
+    assert after["pos"][new][:, 2].min() > before["pos"][:nm0, 2].max()
+    moved = {(a if a < nm0 else a + added, b if b < nm0 else b + added): v
+             for (a, b), v in springs.items()}
+    assert springs and _pair_history(system).keys() == moved.keys()
+    for key, v in _pair_history(system).items():
+        assert np.array_equal(v, moved[key])
+    assert system.e_elastic == reference.e_elastic
+    assert system.max_overlap == reference.max_overlap
+    assert top_up_flow(system, cfg) == 0  # full: nothing more
+    with pytest.raises(ValueError, match="more than the 72"):
+        top_up_flow(system, ChuteConfig(**dict(cfg.as_dict(), H=3.0, flow=cfg.flow,
+                                               base=cfg.base)))
+
+
+def test_topped_up_pile_flows_on_as_one_layer(parent, tmp_path):
+    """`--from STATE --top-up` at the parent's inclination: the summary records the particles
+    added and counts H = 5 worth of flow particles; the flow keeps its mass (an exact count)
+    and the new particles end up inside the layer they joined (their mean height below the
+    old layer's top + 2), and `--top-up` alone, or a state with too few particles without
+    it, is refused naming the option."""
+    state = parent / "parent" / "final_state.npz"
+    run = tmp_path / "run.yaml"
+    run.write_text(yaml.safe_dump(dict(BASE, theta=26.0, H=5.0, t_end=4.0)))
+    out = tmp_path / "child"
+    assert main(["simulate", str(run), "--out", str(out), "--from", str(state),
+                 "--top-up"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["parent"]["topped_up"] == 48
+    assert summary["n_flow"] == 120
+    child = np.load(out / "final_state.npz")
+    assert int((~child["fixed"]).sum()) == 120
+    top0 = np.load(state)["pos"][~np.load(state)["fixed"], 2].max()
+    ids = child["ids"]
+    z_new = child["pos"][(ids >= 72) & (ids < 120), 2]
+    assert z_new.mean() < top0 + 2.0
+    with pytest.raises(SystemExit, match="--top-up: allowed only with --from"):
+        main(["simulate", str(run), "--out", str(tmp_path / "x"), "--top-up"])
+    with pytest.raises(ValueError, match="--top-up adds missing ones"):
+        simulate(dict(BASE, theta=26.0, H=5.0, t_end=1.0), tmp_path / "y", from_state=state)
+    with pytest.raises(ValueError, match="one flow species"):
+        simulate(dict(BASE, theta=26.0, H=5.0, t_end=1.0, sigma=0.8, phi0=0.5),
+                 tmp_path / "z", from_state=state, top_up=True)

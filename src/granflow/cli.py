@@ -159,6 +159,9 @@ def cmd_simulate(args):
     from .provenance import atomic_write_bytes
     from .simulate import check_output_folder, estimate_run_size, load_params, simulate
 
+    if args.top_up and not args.from_state:
+        raise SystemExit("--top-up: allowed only with --from STATE (it adds particles to a "
+                         "saved state)")
     params = load_params(args.params)
     check_output_folder(args.out, estimate_run_size(params)["output_bytes"])
     set_process_name(PROCESS_NAME)
@@ -186,7 +189,7 @@ def cmd_simulate(args):
                            from_state=args.from_state or args.from_if_steady,
                            restart_if=("steady",) if args.from_if_steady else None,
                            max_threads=args.max_threads,
-                           core_lease=args.core_lease)
+                           core_lease=args.core_lease, top_up=args.top_up)
     finally:
         remove_pid_file()
     cost = summary["cost"]
@@ -271,6 +274,10 @@ def main(argv=None):
     src.add_argument("--from-if-steady", dest="from_if_steady", default=None, metavar="STATE",
                      help="as --from when the parent run (summary.json beside STATE) ended "
                           "steady; otherwise a fresh fall onto --base, and the outputs say why")
+    p.add_argument("--top-up", action="store_true",
+                   help="with --from: pour the flow particles that the state lacks for the "
+                        "parameter file's H on top of it, at rest, its contacts kept (the "
+                        "paper's §6 staircase adds 2 particle heights to an arrested pile)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("prepare-base", help="prepare a rough base for one lambda")

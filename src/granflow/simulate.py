@@ -50,7 +50,8 @@ import numpy as np
 
 from . import cfconventions
 from . import units as U
-from .engine.chute import BaseConfig, ChuteConfig, build_chute, prepare_rough_base
+from .engine.chute import (BaseConfig, ChuteConfig, build_chute, prepare_rough_base,
+                           top_up_flow)
 from .engine.run import ChuteRun, cpu_seconds
 from .engine.system import ParticleSystem, SimulationError
 from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
@@ -540,10 +541,13 @@ def startup_time(system, theta_deg: float) -> float:
     return 2.0 * math.sqrt(2.0 * dz / math.cos(math.radians(theta_deg)))
 
 
-def restart_state(state_file, cfg: ChuteConfig):
+def restart_state(state_file, cfg: ChuteConfig, top_up: bool = False):
     """The particle system of a saved state, tilted to ``cfg.theta`` with the clock at t = 0,
     and the parent's provenance.  Raises ValueError if the state is not of this chute (box,
-    flow-particle count, time step) -- checked before any compute."""
+    flow-particle count, time step) -- checked before any compute.  ``top_up``: a state with
+    fewer flow particles than ``cfg.H`` gives gets the rest poured on top, at rest, its contacts
+    kept (:func:`granflow.engine.chute.top_up_flow`; the paper's §6 staircase, which adds 2
+    particle heights to an arrested pile); the provenance records how many (``topped_up``)."""
     import hashlib
     import json
 
@@ -554,9 +558,11 @@ def restart_state(state_file, cfg: ChuteConfig):
     problems = []
     if abs(system.Lx - cfg.Lx) > 1e-9 or abs(system.Ly - cfg.Ly) > 1e-9:
         problems.append(f"box {system.Lx:g} x {system.Ly:g} (run file: {cfg.Lx:g} x {cfg.Ly:g})")
-    if n_flow != n_expected:
+    if top_up and cfg.bidisperse:
+        problems.append(f"a top-up needs one flow species (run file phi0 = {cfg.phi0:g})")
+    elif n_flow > n_expected or (n_flow != n_expected and not top_up):
         problems.append(f"{n_flow} flow particles (run file H = {cfg.H:g}, sigma, phi0 give "
-                        f"{n_expected})")
+                        f"{n_expected}{'' if top_up else '; --top-up adds missing ones'})")
     dt = cfg.flow.t_c / cfg.steps_per_collision
     if abs(system.dt - dt) > 1e-12 * dt:
         problems.append(f"time step {system.dt:g} (run file t_c / steps_per_collision = {dt:g})")
@@ -569,12 +575,15 @@ def restart_state(state_file, cfg: ChuteConfig):
     # their history are kept; the first half kick then uses the new gravity)
     system.force[mobile] += system.mass[mobile, None] * (g_new - system.gvec)[None, :]
     system.gvec = g_new
+    added = top_up_flow(system, cfg) if top_up else 0
     parent_time = float(system.time)
     system.time = 0.0
     system.step_count = 0
     parent = {"parent_state": os.fspath(state_file.resolve()),
               "parent_state_sha256": hashlib.sha256(state_file.read_bytes()).hexdigest(),
               "parent_time": parent_time}
+    if added:
+        parent["topped_up"] = int(added)
     summary = state_file.parent / "summary.json"
     if summary.exists():
         ps = json.loads(summary.read_text())
@@ -606,7 +615,7 @@ def restart_decision(state_file, restart_if) -> tuple[bool, str]:
 
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
              progress=None, extra_observers=(), from_state=None, max_threads: int | None = None,
-             core_lease=None, restart_if=None) -> dict:
+             core_lease=None, restart_if=None, top_up: bool = False) -> dict:
     """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
 
     ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
@@ -617,6 +626,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
     states, else a fresh fall onto ``base_file`` whose outputs record why
     (``restart_skipped``) -- the workflow's neighbour restarts
     (``campaigns.chute.restart_from_neighbour``) never start a run from an arrested layer.
+    ``top_up``: a ``from_state`` with fewer flow particles than ``H`` gives gets the rest
+    poured on top (:func:`restart_state`; a resumed run continues from its checkpoint).
     ``max_threads`` (default: ``$GRANFLOW_MAX_THREADS``, which the workflow sets to its
     ``--cores`` on a local machine): the numba engine takes up to this many threads while the
     machine has idle cores (:mod:`granflow.engine.threads`, shared with the campaign's other
@@ -659,7 +670,7 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         if engine != "numba":
             raise ValueError(f"engine: a restart from a saved state (--from) needs the numba "
                              f"engine, not {engine!r}")
-        system, parent = restart_state(from_state, cfg)
+        system, parent = restart_state(from_state, cfg, top_up=top_up)
     if ckpt.exists() and engine == "numba":  # resume: the run restores system and observers
         system, _ = load_state(ckpt, kind="checkpoint", remove_if_corrupt=True)
     elif from_state is None:  # a fresh run: build the chute (a restart has its system already)

@@ -199,6 +199,37 @@ class ChuteConfig:
         return d
 
 
+def top_up_flow(system: ParticleSystem, cfg: ChuteConfig) -> int:
+    """Pour the flow particles that ``system`` lacks for the filling height ``cfg.H`` on top of
+    it, at rest, keeping its particles and contacts (:meth:`ParticleSystem.add_particles`):
+    the paper's §6 staircase raises H by 2 particle heights on an arrested pile.  They are
+    inserted without overlaps above the highest flow particle (seeded by ``cfg.seed`` and the
+    present count).  Monodisperse chutes only.  Returns the number added; raises ValueError
+    when the system has more flow particles than ``cfg.H`` gives."""
+    if cfg.bidisperse:
+        raise ValueError("top-up (adding layers to a saved state) is for monodisperse chutes "
+                         f"only: phi0 = {cfg.phi0:g} < 1")
+    mobile = ~system.fixed
+    n_flow = int(mobile.sum())
+    d_flow, _ = cfg.flow_particles()
+    k = len(d_flow) - n_flow
+    if k < 0:
+        raise ValueError(f"H = {cfg.H:g}: the state has {n_flow} flow particles, more than the "
+                         f"{len(d_flow)} of this filling height (a top-up only adds)")
+    if k == 0:
+        return 0
+    top = float(system.pos[mobile, 2].max()) if n_flow else 0.0
+    rng = np.random.default_rng([cfg.seed, 11, n_flow])
+    new_r = 0.5 * d_flow[n_flow:]
+    pos = _insert(rng, system.pos, system.radius, new_r, cfg.Lx, cfg.Ly, z_lo=top,
+                  height0=max(1.0, k / (cfg.Lx * cfg.Ly)))
+    flow_type = int(system.ptype[mobile][0]) if n_flow else 0
+    system.add_particles(pos, 2.0 * new_r, density=RHO_PARTICLE, ptype=flow_type)
+    log.info("top-up: %d flow particles poured on the state (z >= %.3g) for H = %g", k, top,
+             cfg.H)
+    return k
+
+
 def build_chute(cfg: ChuteConfig, base_positions: np.ndarray | None = None) -> ParticleSystem:
     """Create the chute system: base (prepared or given), inserted flow particles, tilted gravity."""
     cfg.validate()

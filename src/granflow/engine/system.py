@@ -135,6 +135,75 @@ class ParticleSystem:
         self.pos[:, 0] %= self.Lx
         self.pos[:, 1] %= self.Ly
 
+    def add_particles(self, pos, diameter, density=6.0 / math.pi, ptype=0):
+        """Add mobile particles, at rest, to a system that has run: every existing particle
+        keeps its state and every contact its tangential-spring history (new layers poured on
+        an arrested pile, the staircase of Weinhart et al. 2012 §6: "the height was increased
+        by 2 particle heights, if the flow arrested").
+
+        The new particles go after the existing mobile ones and before the fixed ones, in the
+        arrays and in identity order (:attr:`ids`: the fixed particles' identities move up).
+        The neighbour list is rebuilt with the history carried over and the forces of the new
+        state computed, as :meth:`initialize` does.  Positions must not overlap existing
+        particles (``engine.chute.top_up_flow`` inserts them so); checked values: finite
+        positions, diameters > 0, ``ptype`` a mobile type of the interaction table."""
+        diameter = np.asarray(diameter, dtype=np.float64).reshape(-1)
+        k = len(diameter)
+        pos = np.asarray(pos, dtype=np.float64).reshape(k, 3)
+        density = np.broadcast_to(np.asarray(density, dtype=np.float64), (k,))
+        ptype = np.broadcast_to(np.asarray(ptype, dtype=np.int64), (k,))
+        if k == 0:
+            return
+        if not np.all(np.isfinite(pos)):
+            raise ValueError("pos: every new particle position must be finite")
+        if np.any(diameter <= 0) or not np.all(np.isfinite(diameter)):
+            raise ValueError("diameter: every new particle diameter must be finite and > 0")
+        if not np.all(np.isfinite(density)) or np.any(density <= 0):
+            raise ValueError("density: must be finite and > 0")
+        ntypes = len(self.interactions.type_names)
+        if np.any(ptype < 0) or np.any(ptype >= ntypes):
+            raise ValueError(f"ptype: allowed 0..{ntypes - 1}")
+        nm = int(np.count_nonzero(~self.fixed))
+        if self.fixed[:nm].any():
+            raise ValueError("add_particles needs the mobile particles before the fixed ones")
+        if not hasattr(self, "_inv_mass"):
+            self._cache_inverse()
+
+        def grow(a, new):  # old mobile rows, the new rows, then the fixed rows
+            return np.ascontiguousarray(np.concatenate([a[:nm], new, a[nm:]]))
+
+        zeros3 = np.zeros((k, 3))
+        radius = 0.5 * diameter
+        mass = density * math.pi / 6.0 * diameter**3
+        self.pos = grow(self.pos, pos)
+        self.pos[:, 0] %= self.Lx
+        self.pos[:, 1] %= self.Ly
+        for name in ("vel", "omega", "force", "torque", "wall_hist"):
+            setattr(self, name, grow(getattr(self, name), zeros3))
+        self.radius = grow(self.radius, radius)
+        self.mass = grow(self.mass, mass)
+        self.inertia = grow(self.inertia, 0.4 * mass * radius**2)
+        self.ptype = grow(self.ptype, ptype)
+        self.fixed = grow(self.fixed, np.zeros(k, bool))
+        self.wall_dmax = grow(self.wall_dmax, np.zeros(k))
+        self.wall_rows = grow(self.wall_rows, np.zeros((k, K.NROW)))
+        self.wall_state = grow(self.wall_state, np.zeros(k, np.uint8))
+        ids = np.where(self.ids >= nm, self.ids + k, self.ids)  # mobile identities are < nm
+        self.ids = grow(ids, np.arange(nm, nm + k, dtype=np.int64))
+        # the old pairs in the new indices (a monotone map: still sorted by (i, j)), then a
+        # fresh list that takes their history over
+        old_pi = np.where(self.pi >= nm, self.pi + k, self.pi).astype(np.uint32)
+        old_pj = np.where(self.pj >= nm, self.pj + k, self.pj).astype(np.uint32)
+        self._mobile_sel = None
+        self._cache_inverse()
+        self.pi, self.pj, self.hist_t, self.hist_dmax = K.rebuild_pairs(
+            self.pos, self.radius, self.fixed, self.Lx, self.Ly, self.skin, self._level_of,
+            self._level_cell, old_pi, old_pj, self.hist_t, self.hist_dmax)
+        self._index_pairs()
+        self.pos_ref = self.pos.copy()
+        self._work = np.zeros((numba.config.NUMBA_NUM_THREADS, K.WORK_SIZE))
+        self.compute_forces()
+
     @property
     def n(self) -> int:
         return len(self.radius)
@@ -178,6 +247,13 @@ class ParticleSystem:
             np.zeros(0))
         self._index_pairs()
         self.pos_ref = self.pos.copy()
+        self.compute_forces()
+
+    def compute_forces(self):
+        """Forces, torques, elastic energy and maximum overlap of the current positions and
+        springs, without advancing the springs (the initial forces of a run; a state saved
+        after a step holds the forces with that step's spring increment, so its ``e_elastic``
+        differs from this in the last few digits)."""
         self.e_elastic, self.max_overlap = K.compute_forces(
             self.pos, self.vel, self.omega, self.force, self.torque, self.radius, self._inv_mass,
             self.mass, self._inv_inertia, self.ptype, self.Lx, self.Ly, self.gvec, self.pi,
