@@ -201,7 +201,6 @@ class ParticleSystem:
             self._level_cell, old_pi, old_pj, self.hist_t, self.hist_dmax)
         self._index_pairs()
         self.pos_ref = self.pos.copy()
-        self._work = np.zeros((numba.config.NUMBA_NUM_THREADS, K.WORK_SIZE))
         self.compute_forces()
 
     @property
