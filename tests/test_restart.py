@@ -210,3 +210,44 @@ def test_topped_up_pile_flows_on_as_one_layer(parent, tmp_path):
     with pytest.raises(ValueError, match="one flow species"):
         simulate(dict(BASE, theta=26.0, H=5.0, t_end=1.0, sigma=0.8, phi0=0.5),
                  tmp_path / "z", from_state=state, top_up=True)
+
+
+def test_top_up_never_overlaps_and_counts_exactly(parent):
+    """Property (hypothesis): for any larger filling height the top-up adds exactly the missing
+    flow particles, none of them overlapping any particle (centre distances >= the sum of the
+    radii, in the periodic box), every old particle unchanged by identity, and the forces of
+    the state unchanged (the new particles touch nothing: same elastic energy and overlap)."""
+    from hypothesis import given, settings, strategies as st
+
+    from granflow.engine.chute import top_up_flow
+    from granflow.engine.system import ParticleSystem
+    from granflow.simulate import chute_config, validate_params
+
+    state = parent / "parent" / "final_state.npz"
+    reference, _ = ParticleSystem.load(state)
+    reference.compute_forces()
+    before = _by_identity(reference)
+
+    @settings(max_examples=15, deadline=None, derandomize=True)
+    @given(H=st.floats(3.05, 9.0), seed=st.integers(1, 10**6))  # at least one particle
+    def check(H, seed):
+        system, _ = ParticleSystem.load(state)
+        cfg = chute_config(validate_params(dict(BASE, theta=26.0, H=H, seed=seed)))
+        added = top_up_flow(system, cfg)
+        assert added == round(H * 24.0) - 72
+        after = _by_identity(system)
+        old = np.r_[0:72, 72 + added:system.n]
+        for key, value in before.items():
+            assert np.array_equal(after[key][old], value), key
+        new = after["pos"][72:72 + added]
+        d = new[:, None, :] - after["pos"][None, :, :]
+        d[..., 0] -= system.Lx * np.round(d[..., 0] / system.Lx)
+        d[..., 1] -= system.Ly * np.round(d[..., 1] / system.Ly)
+        dist = np.sqrt((d**2).sum(-1))
+        reach = after["radius"][72:72 + added, None] + after["radius"][None, :]
+        dist[np.arange(added), 72 + np.arange(added)] = np.inf  # itself
+        assert np.all(dist >= reach)
+        assert system.e_elastic == reference.e_elastic
+        assert system.max_overlap == reference.max_overlap
+
+    check()
