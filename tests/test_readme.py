@@ -106,6 +106,10 @@ README_COMMANDS = {
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_engine_threads.py --steps 5000 --repeat 5":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
+    ".venv/bin/python benchmarks/hstop_staircase.py --configfile config/reference-lambda-half.yaml --lam 0.5 --out results/staircase-lambda-half":
+        ("tests/test_benchmark_tools.py::test_hstop_staircase_carries_each_state_to_the_next_run",
+         "the script's walk, starts and intervals with the simulation replaced by a known "
+         "hstop curve; the real run is a measurement (~50 min on one core)"),
     ".venv/bin/python benchmarks/continuum_solver_checks.py":
         ("tests/test_continuum.py::test_small_wave_with_viscosity_follows_the_linearised_equations",
          "the script prints the numbers the fast tests of tests/test_continuum.py assert "
