@@ -251,3 +251,50 @@ def test_top_up_never_overlaps_and_counts_exactly(parent):
         assert system.max_overlap == reference.max_overlap
 
     check()
+
+
+class _Interrupt:
+    """Observer that stops the process (KeyboardInterrupt) once the run passes ``t_kill``;
+    with ``t_kill = inf`` it only samples (so that a resumed run has the same observers)."""
+
+    name = "interrupt"
+
+    def __init__(self, t_kill):
+        self.t_kill = t_kill
+
+    def sample(self, system):
+        if system.time > self.t_kill:
+            raise KeyboardInterrupt
+
+    def state_dict(self):
+        return {}
+
+    def load_state_dict(self, state):
+        pass
+
+
+def test_killed_top_up_run_resumes_to_identical_numbers(parent, tmp_path):
+    """A topped-up restart killed part-way resumes from its checkpoint (the top-up is not
+    applied a second time: the checkpoint holds the topped-up system) and ends with exactly
+    the numbers of an undisturbed run."""
+    state = parent / "parent" / "final_state.npz"
+    params = dict(BASE, theta=26.0, H=5.0, t_end=3.0, checkpoint_every_s=0.0)
+    whole = tmp_path / "whole"
+    simulate(params, whole, from_state=state, top_up=True,
+             extra_observers=(_Interrupt(math.inf),))
+    killed = tmp_path / "killed"
+    with pytest.raises(KeyboardInterrupt):
+        simulate(params, killed, from_state=state, top_up=True,
+                 extra_observers=(_Interrupt(1.5),))
+    assert (killed / "checkpoint.npz").exists() and not (killed / "summary.json").exists()
+    res = simulate(params, killed, from_state=state, top_up=True,
+                   extra_observers=(_Interrupt(math.inf),))
+    assert res["run"].resumed_from >= 1.0 and res["cost"]["segments"] == 2  # it did resume
+    a, b = np.load(whole / "final_state.npz"), np.load(killed / "final_state.npz")
+    assert int((~b["fixed"]).sum()) == 120
+    for key in ("pos", "vel", "omega", "hist_t", "ids"):
+        assert np.array_equal(a[key], b[key]), key
+    sa = json.loads((whole / "summary.json").read_text())
+    sb = json.loads((killed / "summary.json").read_text())
+    assert sb["parent"]["topped_up"] == sa["parent"]["topped_up"] == 48
+    assert sb["t_final"] == sa["t_final"]
