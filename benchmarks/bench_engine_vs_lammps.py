@@ -93,19 +93,14 @@ def matched_species(flow, m_flow: float = 1.0):
 
     Returns (flow-base ContactSpecies, dict of the LAMMPS pair_style coefficients).
     """
-    from granflow.engine.species import ContactSpecies
+    from granflow.engine.species import flow_base_species
 
     c = flow.coefficients()
     m_ff = 0.5 * m_flow          # reduced mass of two flow particles
     m_fb = m_flow                # flow-base: the base has infinite mass
     lmp = dict(Kn=m_ff * c["kn_hat"], Kt=m_ff * c["kt_hat"], gamma_n=c["gn_hat"],
                gamma_t=c["gt_hat"], xmu=flow.mu_c)
-    k_hat = lmp["Kn"] / m_fb
-    g_hat = lmp["gamma_n"]
-    t_c_fb = math.pi / math.sqrt(k_hat - 0.25 * g_hat * g_hat)
-    e_fb = math.exp(-0.5 * g_hat * t_c_fb)
-    fb = ContactSpecies(t_c=t_c_fb, e=e_fb, kt_over_kn=flow.kt_over_kn,
-                        gt_over_gn=flow.gt_over_gn, mu_c=flow.mu_c)
+    fb = flow_base_species(flow, "absolute_k_reduced_damping", m_flow)
     cb = fb.coefficients()
     for name, got, want in (("Kn", m_fb * cb["kn_hat"], lmp["Kn"]),
                             ("Kt", m_fb * cb["kt_hat"], lmp["Kt"]),

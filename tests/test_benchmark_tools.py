@@ -280,3 +280,65 @@ def test_hstop_staircase_carries_each_state_to_the_next_run(tmp_path, monkeypatc
     calls.clear()
     again = st.main(args)
     assert calls == [] and again.runs == search.runs
+
+
+def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path, monkeypatch):
+    """benchmarks/hstop_fresh_falls.py with the simulation replaced by a known demarcation
+    (arrested iff theta < 19.9 + 0.02 H): the campaign's chain at each height (first run at
+    Table 1's angle, steps of 1/2 deg, bisection to 0.25 deg) brackets it; every run is a fresh
+    fall with the flow-base species of the chosen convention, the base is settled with the
+    species asked for, the runs are where hstop_brackets.py reads them, and bad settling input
+    is refused before anything runs."""
+    import json
+
+    import granflow.simulate as gsim
+    from granflow.engine.species import ContactSpecies, flow_base_species
+
+    ff = _load("hstop_fresh_falls")
+    hb = _load("hstop_brackets")
+    calls, bases = [], []
+
+    def fake_simulate(params, out_dir, base_file=None, threads=1, from_state=None, top_up=False):
+        calls.append((params["H"], params["theta"], params.get("base_t_c"), params.get("base_e"),
+                      from_state))
+        out_dir.mkdir(parents=True, exist_ok=True)
+        arrested = params["theta"] < 19.9 + 0.02 * params["H"]
+        (out_dir / "summary.json").write_text(json.dumps(dict(
+            flow_state="arrested" if arrested else "steady", t_final=100.0)))
+        return {}
+
+    monkeypatch.setattr(gsim, "simulate", fake_simulate)
+    def fake_base(lam, Lx, Ly, seed, out, **kw):
+        bases.append(kw)
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_bytes(b"")
+
+    monkeypatch.setattr(gsim, "prepare_base_file", fake_base)
+    out = tmp_path / "out"
+    args = ["--configfile", str(REPO / "config" / "reference-lambda-half.yaml"), "--lam", "0.5",
+            "--H", "16", "24", "--out", str(out), "--base-species", "absolute",
+            "--base-prep-tc", "0.005", "--base-prep-e", "0.88"]
+    rows = ff.main(args)
+    for H, lo, hi, ok in rows:
+        true = 19.9 + 0.02 * H
+        assert ok and lo < true <= hi and hi - lo <= 0.25 + 1e-9, (H, lo, hi)
+    fb = flow_base_species(ContactSpecies(), "absolute")
+    assert {(c[2], c[3]) for c in calls} == {(fb.t_c, fb.e)}
+    assert all(c[4] is None for c in calls)  # fresh falls
+    first = {H: next(c[1] for c in calls if c[0] == H) for H in (16.0, 24.0)}
+    assert first[16.0] == pytest.approx(19.40, abs=0.01)  # Table 1 (the configuration's prior)
+    assert first[24.0] == pytest.approx(19.07, abs=0.01)
+    assert bases == [{"base_layers": 12.0, "settle_time": 30.0, "prep_t_c": 0.005,
+                      "prep_e": 0.88}]
+    runs = hb.bracket_runs(out)
+    assert len(runs) == len(calls) and set(runs.H) == {16.0, 24.0}
+    # a rerun simulates nothing
+    calls.clear()
+    assert ff.main(args) == rows and calls == []
+    # bad input: named, before any run or base
+    with pytest.raises(ValueError, match="prep_e"):
+        ff.main(args[:-1] + ["1.5"])
+    # runs of another base or species are not mixed into a results folder
+    with pytest.raises(ValueError, match="another --out"):
+        ff.main(args[:-5] + ["per_pair"])
+    assert calls == [] and len(bases) == 1

@@ -298,3 +298,37 @@ def test_guards_stop_unphysical_runs_with_clear_messages():
 def test_species_validation_names_the_field(bad, match):
     with pytest.raises(ValueError, match=match):
         ContactSpecies(**bad)
+
+
+@pytest.mark.parametrize("convention", ["absolute", "absolute_k_reduced_damping"])
+def test_flow_base_species_of_an_absolute_coefficient_code(convention):
+    """flow_base_species: a code holding one absolute (k_n, gamma_n) for every pair gives the
+    flow-base contact (reduced mass m = 1 against the flow-flow pair's 1/2) the flow-flow
+    pair's absolute stiffness -- the paper's quoted k_n = 2e5 within 1.5 % -- and either its
+    absolute dashpot ("absolute", MercuryDPM) or its dashpot per unit effective mass
+    (Silbert/LAMMPS: the paper's quoted gamma_n = 50 within 2.5 %); exact to round-off."""
+    from granflow.engine.species import flow_base_species
+
+    ff = ContactSpecies()
+    fb = flow_base_species(ff, convention)
+    cf, cb = ff.coefficients(), fb.coefficients()
+    m_ff, m_fb = 0.5, 1.0
+    assert m_fb * cb["kn_hat"] == pytest.approx(m_ff * cf["kn_hat"], rel=1e-12)
+    assert m_fb * cb["kt_hat"] == pytest.approx(m_ff * cf["kt_hat"], rel=1e-12)
+    assert m_ff * cf["kn_hat"] == pytest.approx(2e5, rel=0.015)
+    if convention == "absolute":
+        assert m_fb * cb["gn_hat"] == pytest.approx(m_ff * cf["gn_hat"], rel=1e-12)
+        assert fb.e > ff.e  # less damped
+    else:
+        assert cb["gn_hat"] == pytest.approx(cf["gn_hat"], rel=1e-12)
+        assert cf["gn_hat"] == pytest.approx(50.0, rel=0.025)
+        assert fb.e < ff.e
+    assert fb.t_c == pytest.approx(0.005 * math.sqrt(2), rel=0.002)  # twice the mass
+    # and a simulated flow-base collision has that species' t_c and e
+    tc_meas, e_meas = measure_collision(two_particles(fb, fixed2=True, spc=70))
+    assert tc_meas == pytest.approx(fb.t_c, rel=3e-3) and e_meas == pytest.approx(fb.e, rel=2e-3)
+    assert flow_base_species(ff, "per_pair") is ff
+    with pytest.raises(ValueError, match="convention"):
+        flow_base_species(ff, "mercury")
+    with pytest.raises(ValueError, match="law"):
+        flow_base_species(ContactSpecies(law="hertz"), "absolute")

@@ -63,6 +63,8 @@ class BaseConfig:
         check_range("Ly", self.Ly, 0.0, 1e4, lo_open=True)
         check_range("base_layers", self.base_layers, 3.0, 100.0)
         check_range("settle_time", self.settle_time, 0.0, 1e5, lo_open=True)
+        check_range("prep_t_c", self.prep_t_c, 0.0, 1.0, lo_open=True)
+        check_range("prep_e", self.prep_e, 0.0, 1.0, lo_open=True)
         if self.lam > 0 and (self.Lx < 3 * self.lam or self.Ly < 3 * self.lam):
             raise ValueError(f"Lx, Ly = {self.Lx}, {self.Ly} must be at least 3 lambda = {3 * self.lam}")
         return self

@@ -123,6 +123,45 @@ def check_range(name, value, lo, hi, lo_open=False, hi_open=False):
     return v
 
 
+#: conventions for the flow-base pair of a code that holds one set of *absolute* coefficients
+#: (see :func:`flow_base_species`)
+FLOW_BASE_CONVENTIONS = ("per_pair", "absolute", "absolute_k_reduced_damping")
+
+
+def flow_base_species(flow: "ContactSpecies", convention: str = "per_pair",
+                      m_flow: float = 1.0) -> "ContactSpecies":
+    """The flow-base species that a code with another parameter convention gives a fixed base.
+
+    The base has infinite mass, so a flow-base contact has the reduced mass of one flow particle,
+    m_fb = m_flow, twice the flow-flow pair's m_ff = m_flow / 2.  Which (t_c, e) it then has
+    depends on how a code stores the flow-flow species:
+
+    * ``per_pair`` (granflow, physics.md §1): every pair has the stated t_c and e;
+    * ``absolute`` (absolute k_n and gamma_n of the flow-flow pair for every pair, e.g.
+      MercuryDPM's species set by collision time and restitution for the flow particle's mass):
+      k_n = m_ff k_hat, gamma_n = m_ff g_hat, so the flow-base contact is softer (t_c sqrt 2
+      longer) and less damped;
+    * ``absolute_k_reduced_damping`` (absolute k_n, damping per unit effective mass: Silbert et
+      al. 2001, LAMMPS ``gran/hooke/history``): k_n as above, g_hat unchanged.
+
+    Tangential stiffness and damping keep their ratios to the normal ones.  Linear law only.
+    """
+    if convention not in FLOW_BASE_CONVENTIONS:
+        raise ValueError(f"convention = {convention!r}: allowed values are {FLOW_BASE_CONVENTIONS}")
+    if flow.law != "linear":
+        raise ValueError(f"law = {flow.law!r}: flow_base_species is defined for the linear law only")
+    check_range("m_flow", m_flow, 0.0, math.inf, lo_open=True, hi_open=True)
+    if convention == "per_pair":
+        return flow
+    c = flow.coefficients()
+    m_ff, m_fb = 0.5 * m_flow, m_flow
+    k_hat = m_ff * c["kn_hat"] / m_fb
+    g_hat = (m_ff * c["gn_hat"] / m_fb) if convention == "absolute" else c["gn_hat"]
+    t_c = math.pi / math.sqrt(k_hat - 0.25 * g_hat * g_hat)
+    return ContactSpecies(t_c=t_c, e=math.exp(-0.5 * g_hat * t_c), kt_over_kn=flow.kt_over_kn,
+                          gt_over_gn=flow.gt_over_gn, mu_c=flow.mu_c, law=flow.law)
+
+
 def hertz_collision(k_hat: float, g_hat: float, v: float, d_ij: float):
     """Collision time and restitution of a central Hertzian collision (per unit reduced mass).
 
