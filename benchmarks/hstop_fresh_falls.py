@@ -109,6 +109,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error(f"--jobs = {args.jobs}: must be at least 1")
+    if args.base_species != "per_pair" and args.law != "linear":
+        raise ValueError(f"--base-species {args.base_species} is defined for --law linear only "
+                         f"(got --law {args.law}): allowed with other laws is per_pair")
 
     from granflow.campaign import grid as G
     from granflow.engine.chute import BaseConfig

@@ -338,6 +338,8 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     # bad input: named, before any run or base
     with pytest.raises(ValueError, match="prep_e"):
         ff.main(args[:-1] + ["1.5"])
+    with pytest.raises(ValueError, match="--base-species absolute is defined for --law linear"):
+        ff.main(args + ["--law", "hertz"])
     # runs of another base or species are not mixed into a results folder
     with pytest.raises(ValueError, match="another --out"):
         ff.main(args[:-5] + ["per_pair"])
