@@ -15,7 +15,12 @@ as the cause:
 * ``--base-prep-tc``, ``--base-prep-e``: the species the base's 12-layer pile settles with
   before its slice is cut (default: the engine's soft, strongly damped settling, t_c = 0.02
   sqrt(lambda), e = 0.2; the paper's own species would be 0.005, 0.88), with
-  ``--base-settle-time`` (an elastic pile settles slowly).
+  ``--base-settle-time`` (an elastic pile settles slowly), ``--base-prep-mu`` (its friction;
+  MercuryDPM's ChuteBottom settles without) and ``--base-fill-packing`` (the solid fraction the
+  pile is sized for, so that a denser settling still leaves ~12 layers).
+
+The flow's insertion (``numerics.insertion_growth``, see :mod:`granflow.engine.chute`) is the
+configuration's: pass a configuration file that sets it to test the initial column.
 
 Every run is a fresh fall with the configuration's bracket-run parameters; runs are written as
 campaign bracket runs (``<out>/bracket/<law>/lambda~L/theta~T/H~H``), so
@@ -101,6 +106,11 @@ def main(argv=None):
                     help="collision time the base pile settles with (x sqrt(lambda))")
     ap.add_argument("--base-prep-e", type=float, default=None,
                     help="restitution the base pile settles with")
+    ap.add_argument("--base-prep-mu", type=float, default=None,
+                    help="sliding friction the base pile settles with (MercuryDPM: 0)")
+    ap.add_argument("--base-fill-packing", type=float, default=None,
+                    help="solid fraction the base pile is sized for (its settled thickness is "
+                    "base.layers lambda when it settles to it: ~0.6 frictional, ~0.65 frictionless)")
     ap.add_argument("--base-settle-time", type=float, default=None,
                     help="longest settling of the base pile (x sqrt(lambda); default: the "
                     "configuration's base.settle_time)")
@@ -121,8 +131,9 @@ def main(argv=None):
     out = Path(args.out)
     Lx, Ly = G.box(config, "chute")
     bcfg = G.base_settings(config)
-    settling = {k: v for k, v in (("prep_t_c", args.base_prep_tc), ("prep_e", args.base_prep_e))
-                if v is not None}
+    settling = {k: v for k, v in (("prep_t_c", args.base_prep_tc), ("prep_e", args.base_prep_e),
+                                  ("prep_mu_c", args.base_prep_mu),
+                                  ("fill_packing", args.base_fill_packing)) if v is not None}
     settle_time = float(args.base_settle_time if args.base_settle_time is not None
                         else bcfg.get("settle_time", 30.0))
     BaseConfig(lam=args.lam, Lx=Lx, Ly=Ly, settle_time=settle_time,

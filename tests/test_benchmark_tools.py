@@ -316,7 +316,8 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     monkeypatch.setattr(gsim, "prepare_base_file", fake_base)
     out = tmp_path / "out"
     args = ["--configfile", str(REPO / "config" / "reference-lambda-half.yaml"), "--lam", "0.5",
-            "--H", "16", "24", "--out", str(out), "--base-species", "absolute",
+            "--H", "16", "24", "--out", str(out), "--base-prep-mu", "0",
+            "--base-fill-packing", "0.648", "--base-species", "absolute",
             "--base-prep-tc", "0.005", "--base-prep-e", "0.88"]
     rows = ff.main(args)
     for H, lo, hi, ok in rows:
@@ -329,7 +330,7 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     assert first[16.0] == pytest.approx(19.40, abs=0.01)  # Table 1 (the configuration's prior)
     assert first[24.0] == pytest.approx(19.07, abs=0.01)
     assert bases == [{"base_layers": 12.0, "settle_time": 30.0, "prep_t_c": 0.005,
-                      "prep_e": 0.88}]
+                      "prep_e": 0.88, "prep_mu_c": 0.0, "fill_packing": 0.648}]
     runs = hb.bracket_runs(out)
     assert len(runs) == len(calls) and set(runs.H) == {16.0, 24.0}
     # a rerun simulates nothing
@@ -338,6 +339,8 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     # bad input: named, before any run or base
     with pytest.raises(ValueError, match="prep_e"):
         ff.main(args[:-1] + ["1.5"])
+    with pytest.raises(ValueError, match="fill_packing = 0.9 is out of range"):
+        ff.main([a if a != "0.648" else "0.9" for a in args])
     with pytest.raises(ValueError, match="--base-species absolute is defined for --law linear"):
         ff.main(args + ["--law", "hertz"])
     # runs of another base or species are not mixed into a results folder

@@ -78,6 +78,8 @@ PARAMETERS = {
     "base_t_c": "flow-base collision time (default t_c)", "base_e": "flow-base restitution (default e)",
     "base_mu_c": "flow-base friction (default mu_c)",
     "steps_per_collision": "t_c / dt, >= 10 (paper 50)", "skin": "Verlet skin, > 0",
+    "insertion_growth": ("height added to the flow's insertion domain per rejected trial, "
+                         "(0, 10] (default 0.01, the paper's text; MercuryDPM's code: 5e-5)"),
     "sigma": "size ratio d_small/d_large, (0, 1]", "phi0": "small-particle volume fraction, [0, 1]",
     "base_layers": "settled base thickness in lambda, [3, 100] (paper 12)",
     "sample_interval": "time between samples (default t_c/2)",
@@ -118,6 +120,7 @@ RANGES = {
     "base_t_c": (0.0, 1.0, True, False), "base_e": (0.0, 1.0, True, False),
     "base_mu_c": (0.0, math.inf, False, False), "steps_per_collision": (10.0, 1e6, False, False),
     "skin": (0.0, 10.0, True, False), "sigma": (0.0, 1.0, True, False), "phi0": (0.0, 1.0, False, False),
+    "insertion_growth": (0.0, 10.0, True, False),
     "base_layers": (3.0, 100.0, False, False), "sample_interval": (0.0, 1e6, True, False),
     "checkpoint_every_s": (0.0, 1e7, False, False), "averaging_time": (0.0, 1e7, True, False),
     "check_every": (0.0, 1e7, True, False), "min_accelerating_time": (0.0, 1e7, False, False),
@@ -192,6 +195,7 @@ def validate_params(params: dict, *, check_machine: bool = True) -> dict:
              contact_law="linear", t_c=REFERENCE["t_c"], e=REFERENCE["e"], mu_c=REFERENCE["mu_c"],
              kt_over_kn=REFERENCE["kt_over_kn"], gt_over_gn=REFERENCE["gt_over_gn"], v_ref=1.0,
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
+             insertion_growth=0.01,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
              averaging_time=100.0, check_every=10.0, min_accelerating_time=None, max_overlap=None,
              cg_width=0.25,
@@ -413,7 +417,8 @@ def chute_config(p: dict) -> ChuteConfig:
     return ChuteConfig(theta=p["theta"], H=p["H"], lam=p["lam"], Lx=p["Lx"], Ly=p["Ly"],
                        seed=int(p["seed"]), flow=flow, base=base,
                        steps_per_collision=p["steps_per_collision"], skin=p["skin"],
-                       sigma=p["sigma"], phi0=p["phi0"])
+                       sigma=p["sigma"], phi0=p["phi0"],
+                       insertion_growth=p["insertion_growth"])
 
 
 def load_params(path) -> dict:

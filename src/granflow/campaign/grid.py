@@ -37,7 +37,8 @@ SPECIES_KEYS = ("t_c", "e", "mu_c", "kt_over_kn", "gt_over_gn", "v_ref", "base_t
 #: configuration ``numerics`` keys passed to every run as they are
 NUMERICS_KEYS = ("t_end", "averaging_time", "check_every", "min_accelerating_time",
                  "max_overlap", "steps_per_collision", "skin", "sample_interval", "cg_width", "cg_dz",
-                 "cg_window", "cg_every", "checkpoint_every_s", "seed", "early_stop")
+                 "cg_window", "cg_every", "checkpoint_every_s", "seed", "early_stop",
+                 "insertion_growth")
 
 _NUM = r"[0-9][0-9.e+-]*"
 _RUN_RE = re.compile(

@@ -7,10 +7,16 @@ Implements the protocol of Weinhart et al. (2012) §5 (physics.md §3):
   z in [base_layers - 2.7, base_layers - 1] lambda (paper: [9.3, 11] lambda), delete the rest,
   shift down by (base_layers - 1) lambda and freeze them.  lambda = 0 is a flat frictional wall
   at z = 0.  Settling uses a soft, strongly damped preparation species (the frozen positions
-  are all that is kept; the flow never feels that species).
+  are all that is kept; the flow never feels that species): by default with friction 0.5
+  (bulk solid fraction ~0.61); ``prep_mu_c = 0`` as MercuryDPM's ChuteBottom (~0.65, with
+  ``fill_packing`` ~0.65 so that the pile still settles ~12 layers thick).
 * **flow insertion** — random positions in [0, Lx] x [0, Ly] x [0, I], I = H initially;
-  overlapping trials are rejected and I grows by 0.01 after each rejection (initial packing
-  ~0.3).  The number of flow particles is N = H Lx Ly (monodisperse d = 1: "filling height" H
+  overlapping trials are rejected and I grows by ``insertion_growth`` after each rejection.
+  The paper's text says 0.01 and "initial packing about 0.3", which disagree: 0.01 gives a
+  column at solid fraction ~0.12 in the 20 x 10 box (~0.18 in 10 x 5), while MercuryDPM's
+  SilbertPeriodic driver grows I by 1e-4 particle radii (5e-5 d), which gives ~0.31 (0.35 in
+  10 x 5).  Default 0.01 (every run made so far); the looser column falls from about twice the
+  height.  The number of flow particles is N = H Lx Ly (monodisperse d = 1: "filling height" H
   is the flow volume / (Lx Ly pi/6)), for mixtures N_s, N_l follow from phi0.
 * **gravity** tilted by theta: g = (sin theta, 0, -cos theta).
 
@@ -56,6 +62,8 @@ class BaseConfig:
     settle_time: float = 30.0        # maximum settling time (units sqrt(lambda/g) x sqrt(lambda))
     prep_t_c: float = 0.02           # soft preparation species: collision time (x sqrt(lambda))
     prep_e: float = 0.2              # and restitution (strongly damped: settles quickly)
+    prep_mu_c: float = 0.5           # and sliding friction (MercuryDPM's ChuteBottom: 0)
+    fill_packing: float = BASE_FILL_PACKING  # solid fraction the pile is sized for
 
     def validate(self):
         check_range("lam", self.lam, 0.0, 10.0)
@@ -65,6 +73,8 @@ class BaseConfig:
         check_range("settle_time", self.settle_time, 0.0, 1e5, lo_open=True)
         check_range("prep_t_c", self.prep_t_c, 0.0, 1.0, lo_open=True)
         check_range("prep_e", self.prep_e, 0.0, 1.0, lo_open=True)
+        check_range("prep_mu_c", self.prep_mu_c, 0.0, 10.0)
+        check_range("fill_packing", self.fill_packing, 0.3, 0.74)
         if self.lam > 0 and (self.Lx < 3 * self.lam or self.Ly < 3 * self.lam):
             raise ValueError(f"Lx, Ly = {self.Lx}, {self.Ly} must be at least 3 lambda = {3 * self.lam}")
         return self
@@ -81,13 +91,13 @@ def prepare_rough_base(cfg: BaseConfig) -> np.ndarray:
         return np.zeros((0, 3))
     rng = np.random.default_rng(cfg.seed)
     area = cfg.Lx * cfg.Ly
-    n = int(math.ceil(cfg.base_layers * lam * area * BASE_FILL_PACKING / (math.pi / 6 * lam**3)))
+    n = int(math.ceil(cfg.base_layers * lam * area * cfg.fill_packing / (math.pi / 6 * lam**3)))
     radius = np.full(n, 0.5 * lam)
     pos = _insert(rng, np.zeros((0, 3)), np.zeros(0), radius, cfg.Lx, cfg.Ly,
                   z_lo=0.5 * lam, height0=2.0 * cfg.base_layers * lam)
     tc = cfg.prep_t_c * math.sqrt(lam)
     tab = InteractionTable(["base", "wall"], [lam, 0.0])
-    prep = ContactSpecies(t_c=tc, e=cfg.prep_e, mu_c=0.5)
+    prep = ContactSpecies(t_c=tc, e=cfg.prep_e, mu_c=cfg.prep_mu_c)
     for a in ("base", "wall"):
         for b in ("base", "wall"):
             tab.set(a, b, prep)
@@ -143,6 +153,8 @@ class ChuteConfig:
     sigma: float = 1.0
     phi0: float = 1.0
     d_small: float = 1.0
+    # flow insertion: height added to the insertion domain per rejected trial (module docstring)
+    insertion_growth: float = 0.01
 
     def validate(self):
         check_range("theta", self.theta, 0.0, 90.0, lo_open=True, hi_open=True)
@@ -155,6 +167,7 @@ class ChuteConfig:
         check_range("steps_per_collision", self.steps_per_collision, 10.0, 1e6)
         check_range("skin", self.skin, 0.0, 10.0, lo_open=True)
         check_range("d_small", self.d_small, 0.0, 100.0, lo_open=True)
+        check_range("insertion_growth", self.insertion_growth, 0.0, 10.0, lo_open=True)
         return self
 
     @property
@@ -256,7 +269,7 @@ def build_chute(cfg: ChuteConfig, base_positions: np.ndarray | None = None) -> P
     base_r = np.full(len(base_positions), 0.5 * cfg.lam)
     z_lo = 0.0 if cfg.lam > 0 else 0.5 * float(d_flow.max())
     pos_sorted = _insert(rng, base_positions, base_r, 0.5 * d_flow[order], cfg.Lx, cfg.Ly,
-                         z_lo=z_lo, height0=cfg.H)
+                         z_lo=z_lo, height0=cfg.H, grow=cfg.insertion_growth)
     pos_flow = np.empty_like(pos_sorted)
     pos_flow[order] = pos_sorted
     tab = cfg.interactions()
