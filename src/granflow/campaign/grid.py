@@ -237,7 +237,8 @@ def run_params(config: dict, p: RunPoint) -> dict:
     the box, base thickness and the grid values of the point; a ``bracket`` run (hstop
     bisection) is a chute run that stops as soon as it is decisively flowing (under the
     ``continuation`` protocol: one that runs to the arrest horizon unless arrested or steady,
-    :data:`granflow.campaign.hstop.BISECTION_PROTOCOLS`), coarse-grained every
+    :data:`granflow.campaign.hstop.BISECTION_PROTOCOLS`) and at the arrest horizon at the
+    latest (not arrested by then: flowing, the paper's §6 rule), coarse-grained every
     ``hstop_bisection.cg_every``-th sample where that is set; a campaign with
     ``engine: lammps`` adds ``engine`` (the run is then carried out by LAMMPS,
     :mod:`granflow.lammps`).
@@ -261,8 +262,9 @@ def run_params(config: dict, p: RunPoint) -> dict:
         if protocol == "continuation":  # arrested within the horizon, or flowing
             params.update(stop_when_flowing=False, early_stop=True,
                           t_end=min(float(params.get("t_end", horizon)), horizon))
-        else:  # arrested or decisively flowing is all a bracket needs
-            params.update(stop_when_flowing=True, early_stop=True)
+        else:  # arrested (within the horizon) or decisively flowing is all a bracket needs
+            params.update(stop_when_flowing=True, early_stop=True,
+                          t_end=min(float(params.get("t_end", horizon)), horizon))
         if bis.get("cg_every") is not None:  # its profiles enter no closure (hstop: state only)
             params["cg_every"] = int(bis["cg_every"])
     if p.replicate:  # replicate k: the insertion seed + k (the base is shared)

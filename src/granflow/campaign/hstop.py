@@ -99,7 +99,10 @@ BISECTION_KEYS = ("step", "tolerance", "max_runs", "theta_min", "theta_max", "re
 #: How a chain's bracket runs start (``hstop_bisection.protocol``):
 #:
 #: * ``fresh_fall`` (default): every bracket run is a fresh fall onto the base, stopped as soon as
-#:   it is arrested or decisively flowing;
+#:   it is arrested or decisively flowing, and arrested only if it arrests within
+#:   ``arrest_horizon`` (the paper's §6 rule, as MercuryDPM's hstop driver: ``setTimeMax(500)``;
+#:   until 2026-11-27 a fresh fall ran to t_end, and one lambda = 1, H = 16 run at 21.08 deg that
+#:   arrested at t = 601 counted as arrested);
 #: * ``continuation``: the paper's §6 reading ("initial conditions determined by the following
 #:   algorithm ... from this initial flowing state ... the angle decreased by 1/2 deg"): a bracket
 #:   run starts from the final state of the chain's flowing run at the nearest angle above it
@@ -109,7 +112,7 @@ BISECTION_KEYS = ("step", "tolerance", "max_runs", "theta_min", "theta_max", "re
 #:   flow continued from 20.65 deg stays steady at 20.40 (u_bar 4.8) and still flows at 19.90
 #:   -- a hysteresis of the thick layers that the fresh falls put above Table 1's hstop curve.
 BISECTION_PROTOCOLS = ("fresh_fall", "continuation")
-#: Paper §6: arrested when E_kin/<E_ela> falls below 1e-5 within 500 time units.
+#: Paper §6: arrested when E_kin/<E_ela> falls below 1e-5 within 500 time units (both protocols).
 ARREST_HORIZON = 500.0
 #: keys of ``hstop_bisection`` that are not :class:`Bisection` settings (not passed to step 0)
 BISECTION_RUN_KEYS = ("protocol", "arrest_horizon", "cg_every")
