@@ -50,8 +50,8 @@ import numpy as np
 
 from . import cfconventions
 from . import units as U
-from .engine.chute import (BaseConfig, ChuteConfig, build_chute, prepare_rough_base,
-                           top_up_flow)
+from .engine.chute import (DEFAULT_INSERTION_GROWTH, BaseConfig, ChuteConfig, build_chute,
+                           prepare_rough_base, top_up_flow)
 from .engine.run import ChuteRun, cpu_seconds
 from .engine.system import ParticleSystem, SimulationError
 from .engine.species import LAWS, REFERENCE, ContactSpecies, check_range
@@ -195,7 +195,7 @@ def validate_params(params: dict, *, check_machine: bool = True) -> dict:
              contact_law="linear", t_c=REFERENCE["t_c"], e=REFERENCE["e"], mu_c=REFERENCE["mu_c"],
              kt_over_kn=REFERENCE["kt_over_kn"], gt_over_gn=REFERENCE["gt_over_gn"], v_ref=1.0,
              steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
-             insertion_growth=0.01,
+             insertion_growth=DEFAULT_INSERTION_GROWTH,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
              averaging_time=100.0, check_every=10.0, min_accelerating_time=None, max_overlap=None,
              cg_width=0.25,

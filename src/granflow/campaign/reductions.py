@@ -99,7 +99,9 @@ def config_differences(config: dict) -> list[str]:
         if "averaging_time" in cn and not _same(cn["averaging_time"], PAPER["averaging_time"]):
             out.append(f"averaging over {_fmt(cn['averaging_time'])} time units after the "
                        "steady onset (paper 100)")
-        growth = float(cn.get("insertion_growth") or 0.01)
+        from ..engine.chute import DEFAULT_INSERTION_GROWTH
+
+        growth = float(cn.get("insertion_growth") or DEFAULT_INSERTION_GROWTH)
         if not _same(growth, PAPER["insertion_growth"]):
             out.append(f"flow inserted growing the insertion domain by {growth:g} per rejected "
                        "trial (the paper's text says 0.01 but an initial packing of about 0.3, "

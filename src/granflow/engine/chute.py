@@ -41,6 +41,9 @@ log = logging.getLogger(__name__)
 
 #: Packing fraction assumed when sizing the base-preparation fill.
 BASE_FILL_PACKING = 0.6
+#: Height added to the flow's insertion domain per rejected trial (the paper's text; see the
+#: module docstring for MercuryDPM's 5e-5, which gives the paper's stated initial packing).
+DEFAULT_INSERTION_GROWTH = 0.01
 #: Overlap guard of the base-preparation settling, as a fraction of lambda.  The engine's 5 %
 #: (:data:`granflow.engine.system.MAX_OVERLAP_FRACTION`) guards the runs' physics; the preparation
 #: is a soft, strongly damped settling whose only output is where its particles come to rest, and
@@ -123,7 +126,8 @@ def prepare_rough_base(cfg: BaseConfig) -> np.ndarray:
     return base[order]
 
 
-def _insert(rng, existing_pos, existing_radius, radius, Lx, Ly, z_lo, height0, grow=0.01):
+def _insert(rng, existing_pos, existing_radius, radius, Lx, Ly, z_lo, height0,
+            grow=DEFAULT_INSERTION_GROWTH):
     """Seeded random sequential insertion (draws more random numbers until it fits)."""
     nbatch = max(3 * 64 * len(radius), 3000)
     uniforms = rng.random(nbatch)
@@ -154,7 +158,7 @@ class ChuteConfig:
     phi0: float = 1.0
     d_small: float = 1.0
     # flow insertion: height added to the insertion domain per rejected trial (module docstring)
-    insertion_growth: float = 0.01
+    insertion_growth: float = DEFAULT_INSERTION_GROWTH
 
     def validate(self):
         check_range("theta", self.theta, 0.0, 90.0, lo_open=True, hi_open=True)
@@ -237,7 +241,7 @@ def top_up_flow(system: ParticleSystem, cfg: ChuteConfig) -> int:
     rng = np.random.default_rng([cfg.seed, 11, n_flow])
     new_r = 0.5 * d_flow[n_flow:]
     pos = _insert(rng, system.pos, system.radius, new_r, cfg.Lx, cfg.Ly, z_lo=top,
-                  height0=max(1.0, k / (cfg.Lx * cfg.Ly)))
+                  height0=max(1.0, k / (cfg.Lx * cfg.Ly)), grow=cfg.insertion_growth)
     flow_type = int(system.ptype[mobile][0]) if n_flow else 0
     system.add_particles(pos, 2.0 * new_r, density=RHO_PARTICLE, ptype=flow_type)
     log.info("top-up: %d flow particles poured on the state (z >= %.3g) for H = %g", k, top,
