@@ -216,7 +216,7 @@ def test_base_preparation_has_its_own_overlap_guard(monkeypatch):
 
 
 def _column_packing(growth, H=8.0, Lx=20.0, Ly=10.0):
-    """Solid fraction of the inserted flow column of a flat-bottomed 20 x 10 chute."""
+    """Solid fraction of the inserted flow column of a flat-bottomed chute (default 20 x 10)."""
     from granflow.engine.chute import ChuteConfig, _insert
 
     cfg = ChuteConfig(theta=20.0, H=H, lam=0.0, Lx=Lx, Ly=Ly, insertion_growth=growth).validate()
