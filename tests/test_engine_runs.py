@@ -126,6 +126,109 @@ def _cost_line(stdout: str) -> dict:
             "wall_s": float(m.group(5)), "segments": int(m.group(6))}
 
 
+class _Killed(Exception):
+    pass
+
+
+class _KillAt:
+    """An observer that ends the process's run (like a kill) once t passes ``t``; with
+    checkpoint_every_s = 0 the checkpoint of the sample before is on disk."""
+
+    name = "kill_at"
+
+    def __init__(self, t):
+        self.t = t
+
+    def sample(self, system):
+        if system.time > self.t:
+            raise _Killed
+
+    def state_dict(self):
+        return {}
+
+    def load_state_dict(self, state):
+        pass
+
+
+def _params_of(pfile, **changes):
+    return dict(yaml.safe_load(pfile.read_text()), **changes)
+
+
+def _killed_at_2(params, out, base):
+    from granflow.simulate import simulate
+
+    with pytest.raises(_Killed):
+        simulate(dict(params, checkpoint_every_s=0.0), out, base_file=base,
+                 extra_observers=[_KillAt(2.0)])
+    assert (out / "checkpoint.npz").exists()
+
+
+def _same_state(a, b):
+    a, b = np.load(a / "final_state.npz"), np.load(b / "final_state.npz")
+    return all(np.array_equal(a[k], b[k]) for k in ("pos", "vel", "omega", "hist_t"))
+
+
+def test_checkpoint_of_other_physics_is_moved_aside_not_resumed(small_job, tmp_path, caplog):
+    """A run killed under one set of parameters and rerun under another (a changed
+    inclination; Snakemake reruns a job whose params changed, and scripts call simulate
+    directly) must not continue the old physics under the new parameters' provenance: the
+    rerun starts at t = 0 and ends with exactly the numbers of a fresh run, the old checkpoint
+    kept beside it under another name, the log naming the changed parameter."""
+    from granflow.simulate import simulate
+
+    tmp, pfile, base = small_job
+    out = tmp_path / "run"
+    _killed_at_2(_params_of(pfile, theta=26.0), out, base)
+    with caplog.at_level("WARNING", logger="granflow.simulate"):
+        res = simulate(_params_of(pfile, theta=24.0), out, base_file=base)
+    assert res["cost"]["segments"] == 1 and res["run"].resumed_from is None
+    assert "theta 26.0 -> 24.0" in caplog.text and "starts at t = 0" in caplog.text
+    assert len(list(out.glob("checkpoint.superseded-*.npz"))) == 1
+    assert not (out / "checkpoint.npz").exists()
+    fresh = tmp_path / "fresh"
+    simulate(_params_of(pfile, theta=24.0), fresh, base_file=base)
+    assert _same_state(out, fresh)
+    # a different base file is other physics too (same parameters)
+    other = tmp_path / "other_base.npy"
+    np.save(other, np.load(base)[::-1])
+    out2 = tmp_path / "run2"
+    _killed_at_2(_params_of(pfile), out2, base)
+    with caplog.at_level("WARNING", logger="granflow.simulate"):
+        res = simulate(_params_of(pfile, t_end=2.5), out2, base_file=other)
+    assert res["run"].resumed_from is None and "base_sha256" in caplog.text
+
+
+def test_checkpoint_resumes_when_only_stopping_parameters_change(small_job, tmp_path, caplog):
+    """t_end, early_stop, stop_when_flowing and checkpoint_every_s say when a run stops, not
+    what it simulates: a run killed under t_end = 12 and rerun under t_end = 8 (a fresh fall
+    cut at the arrest horizon, say) resumes and ends exactly as an uninterrupted t_end = 8
+    run.  A checkpoint of an older granflow, without stored parameters, is resumed with a
+    warning."""
+    from granflow.simulate import RESUME_FREE_PARAMETERS, simulate
+
+    assert set(RESUME_FREE_PARAMETERS) == {"t_end", "early_stop", "stop_when_flowing",
+                                           "checkpoint_every_s"}
+    tmp, pfile, base = small_job
+    out = tmp_path / "run"
+    _killed_at_2(_params_of(pfile, t_end=12.0), out, base)
+    res = simulate(_params_of(pfile, t_end=8.0), out, base_file=base)
+    assert res["cost"]["segments"] == 2 and 2.0 <= res["run"].resumed_from <= 2.1
+    ref = tmp_path / "ref"
+    simulate(_params_of(pfile, t_end=8.0), ref, base_file=base)
+    assert _same_state(out, ref)
+    # an older checkpoint: no run_identity member
+    old = tmp_path / "old"
+    _killed_at_2(_params_of(pfile, t_end=8.0), old, base)
+    with np.load(old / "checkpoint.npz") as data:
+        arrays = {k: data[k] for k in data.files if k != "extra__run_identity"}
+    assert len(arrays) == len(np.load(old / "checkpoint.npz").files) - 1
+    np.savez(old / "checkpoint.npz", **arrays)
+    with caplog.at_level("WARNING", logger="granflow.simulate"):
+        res = simulate(_params_of(pfile, t_end=8.0), old, base_file=base)
+    assert res["cost"]["segments"] == 2 and "stores no run parameters" in caplog.text
+    assert _same_state(old, ref)
+
+
 def test_same_seed_same_numbers_and_provenance(small_job):
     tmp, pfile, base = small_job
     again = tmp / "again"

@@ -36,7 +36,10 @@ seen it flow (steady, accelerating, ...) before the stop; a run stopped before i
 state (an impact while the layer falls in) is no evidence either way: the hstop fit leaves it
 out and a bisection chain stops at it (:data:`granflow.campaign.collect.ENGINE_STOP_NO_STATE`).  Rerunning the same command resumes from the checkpoint and stops identically.
 
-All outputs are written atomically; the checkpoint is removed only after they exist.
+All outputs are written atomically; the checkpoint is removed only after they exist.  A
+checkpoint stores the run's identity (:func:`run_identity`: every parameter but those of
+:data:`RESUME_FREE_PARAMETERS`, the base file's and the parent state's SHA-256); one written by
+a run of other physics is moved aside and the run starts afresh (:func:`keep_matching_checkpoint`).
 """
 
 from __future__ import annotations
@@ -624,7 +627,8 @@ def restart_decision(state_file, restart_if) -> tuple[bool, str]:
 def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
              progress=None, extra_observers=(), from_state=None, max_threads: int | None = None,
              core_lease=None, restart_if=None, top_up: bool = False) -> dict:
-    """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one).
+    """Run one chute job into ``out_dir`` (resuming from its checkpoint if there is one that
+    a run of the same parameters, base and parent wrote: :func:`keep_matching_checkpoint`).
 
     ``extra_observers`` (each with a unique ``name``) are sampled and checkpointed with the
     run, after the built-in ones (e.g. a second :class:`~granflow.observers.ProfileObserver`
@@ -679,6 +683,9 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
             raise ValueError(f"engine: a restart from a saved state (--from) needs the numba "
                              f"engine, not {engine!r}")
         system, parent = restart_state(from_state, cfg, top_up=top_up)
+    identity = run_identity(p, base_file, parent, top_up)
+    if ckpt.exists() and engine == "numba":  # a checkpoint of other physics is moved aside
+        keep_matching_checkpoint(ckpt, identity)
     if ckpt.exists() and engine == "numba":  # resume: the run restores system and observers
         system, _ = load_state(ckpt, kind="checkpoint", remove_if_corrupt=True)
     elif from_state is None:  # a fresh run: build the chute (a restart has its system already)
@@ -708,7 +715,8 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                        checkpoint=None, progress=progress)
     else:
         run = ChuteRun(system, t_end=p["t_end"], sample_every=sample_every, checkpoint=ckpt,
-                       checkpoint_every_s=p["checkpoint_every_s"], progress=progress)
+                       checkpoint_every_s=p["checkpoint_every_s"], progress=progress,
+                       checkpoint_identity=json.dumps(identity, sort_keys=True))
     run.segment_start = (wall0, cpu0)  # the set-up above counts in the run's cost
     if spare is not None:
         # a borrowed thread stays only if the run's steps per second show it pays
@@ -773,6 +781,74 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         ckpt.unlink()
     # wall_s: this process; cost: the whole run (all segments of a resumed run, CPU of all threads)
     return dict(out, wall_s=_time.monotonic() - wall0, cost=run.cost(), run=run)
+
+
+#: Run parameters that only say when a run stops or how often it checkpoints: a checkpoint
+#: written under other values of these is resumed (a run continued to a later ``t_end``, or
+#: ended at the arrest horizon); a difference in any other parameter, in the base file or in
+#: the parent state starts the run afresh (:func:`keep_matching_checkpoint`).
+RESUME_FREE_PARAMETERS = ("t_end", "early_stop", "stop_when_flowing", "checkpoint_every_s")
+
+
+def run_identity(p: dict, base_file=None, parent: dict | None = None,
+                 top_up: bool = False) -> dict:
+    """What a checkpoint must share with a run to be resumed by it: the validated run
+    parameters ``p`` except :data:`RESUME_FREE_PARAMETERS`, the engine, the SHA-256 of the
+    base file (None: a base prepared from the parameters) and, for a restart, the parent
+    state's SHA-256 (``parent`` from :func:`restart_state`) and whether it was topped up."""
+    import hashlib
+
+    ident = {k: p[k] for k in sorted(p) if k not in RESUME_FREE_PARAMETERS}
+    ident["engine"] = p.get("engine", "numba")
+    ident["base_sha256"] = (None if base_file is None
+                            else hashlib.sha256(Path(base_file).read_bytes()).hexdigest())
+    parent = parent or {}
+    ident["parent_state_sha256"] = parent.get("parent_state_sha256")
+    ident["top_up"] = bool(top_up) if parent.get("parent_state_sha256") else False
+    return ident
+
+
+def checkpoint_identity(ckpt) -> dict | None:
+    """The run identity stored in a checkpoint (None: written before checkpoints kept one, or
+    unreadable -- :func:`load_state` then says what is wrong with the file)."""
+    import json
+
+    try:
+        with np.load(ckpt, allow_pickle=False) as data:
+            if "extra__run_identity" not in data.files:
+                return None
+            return json.loads(str(data["extra__run_identity"]))
+    except Exception:  # a truncated or foreign file: the resume path reports it
+        return None
+
+
+def keep_matching_checkpoint(ckpt, identity: dict) -> bool:
+    """Keep ``ckpt`` for a resume only if it was written by a run with this ``identity``
+    (:func:`run_identity`); otherwise move it aside, to ``checkpoint.superseded-<hash>.npz``
+    in the same folder (nothing is deleted), and log which parameters differ: the run then
+    starts at t = 0 instead of continuing another run's physics under these parameters.
+    A checkpoint without a stored identity (older granflow) is resumed, with a warning.
+    Returns True when the checkpoint is kept."""
+    import hashlib
+    import json
+
+    ckpt = Path(ckpt)
+    stored = checkpoint_identity(ckpt)
+    if stored is None:
+        log.warning("checkpoint %s stores no run parameters (written before granflow kept "
+                    "them): resumed without checking that they are this run's", ckpt)
+        return True
+    if stored == identity:
+        return True
+    keys = sorted(set(stored) | set(identity))
+    diff = [f"{k} {stored.get(k)!r} -> {identity.get(k)!r}" for k in keys
+            if stored.get(k) != identity.get(k)]
+    tag = hashlib.sha256(json.dumps(stored, sort_keys=True).encode()).hexdigest()[:12]
+    aside = ckpt.with_name(f"checkpoint.superseded-{tag}.npz")
+    os.replace(ckpt, aside)
+    log.warning("checkpoint %s was written by a run with other parameters (%s): moved to %s; "
+                "this run starts at t = 0", ckpt, "; ".join(diff), aside.name)
+    return False
 
 
 def lammps_attrs(lammps) -> dict:

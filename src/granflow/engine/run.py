@@ -102,12 +102,15 @@ class ChuteRun:
         and optionally ``should_stop(system) -> (bool, reason)``
     checkpoint : path of the checkpoint file (None: no checkpoints)
     checkpoint_every_s : wall-clock seconds between checkpoints
+    checkpoint_identity : a JSON string written into every checkpoint (``run_identity``), which
+        the caller compares before it resumes one (:func:`granflow.simulate.simulate`: the run
+        parameters that decide the physics and the files it started from)
     """
 
     def __init__(self, system: ParticleSystem, t_end: float, sample_every: int | None = None,
                  observers=(), checkpoint: str | os.PathLike | None = None,
                  checkpoint_every_s: float = 60.0, progress: bool | None = None,
-                 stop_hook=None):
+                 stop_hook=None, checkpoint_identity: str | None = None):
         if not (t_end > 0 and math.isfinite(t_end)):
             raise ValueError(f"t_end = {t_end!r} is out of range: allowed (0, inf)")
         self.system = system
@@ -118,6 +121,7 @@ class ChuteRun:
         self.observers = [self.series, *observers]
         self.checkpoint = Path(checkpoint) if checkpoint else None
         self.checkpoint_every_s = float(checkpoint_every_s)
+        self.checkpoint_identity = checkpoint_identity
         self.progress = sys.stderr.isatty() if progress is None else progress
         self.stop_hook = stop_hook
         # called after every chunk of steps (e.g. SpareCores.poll, which changes the numba
@@ -140,6 +144,8 @@ class ChuteRun:
         extra["cost_wall_s"] = np.array(cost["wall_s"])
         extra["cost_cpu_s"] = np.array(cost["cpu_s"])
         extra["cost_segments"] = np.array(cost["segments"])
+        if self.checkpoint_identity is not None:
+            extra["run_identity"] = np.array(self.checkpoint_identity)
         self.system.save(self.checkpoint, extra=extra)
 
     def cost(self) -> dict:
