@@ -6,8 +6,10 @@
 # from checkpoint.npz after a kill (the checkpoint is not a declared output, so Snakemake keeps
 # it when it reruns the job).  Progress is logged every 30 s to the run's simulate.log.
 # The job first writes the run's params.yaml from the configuration (`granflow campaign
-# run-params`, which validates it and drops a checkpoint left by *different* parameters);
-# a changed parameter reruns the job through Snakemake's params trigger.
+# run-params`, which validates it); a changed parameter reruns the job through Snakemake's
+# params trigger, and `granflow simulate` resumes a checkpoint only if it was written with the
+# same physics (only t_end, early_stop, stop_when_flowing or checkpoint_every_s changed), else
+# moves it aside and starts afresh (granflow.simulate.keep_matching_checkpoint).
 # Engine: a campaign block with `engine: lammps` puts `engine: lammps` into its runs'
 # params.yaml (granflow.campaign.grid.run_params); `granflow simulate` then writes the LAMMPS
 # input from the same parameters, runs `lmp` (`mpirun -np {threads}` for threads > 1) and

@@ -66,7 +66,7 @@ def cmd_run_params(args):
     import yaml
 
     from ..provenance import atomic_write_bytes
-    from ..simulate import validate_params
+    from ..simulate import checkpoint_identity, validate_params
 
     params = json.loads(args.json)
     validate_params(dict(params))  # fail here, before the job, with the key and its range
@@ -74,8 +74,15 @@ def cmd_run_params(args):
     out = Path(args.out)
     ckpt = out.parent / "checkpoint.npz"
     if out.exists() and out.read_text() != text and ckpt.exists():
-        ckpt.unlink()  # a checkpoint of other parameters must not be resumed
-        print(f"{out}: parameters changed; removed the stale {ckpt}", file=sys.stderr)
+        if checkpoint_identity(ckpt) is None:
+            # written before checkpoints stored their run: other parameters, unverifiable
+            ckpt.unlink()
+            print(f"{out}: parameters changed; removed the stale {ckpt} (it does not say "
+                  "which parameters wrote it)", file=sys.stderr)
+        else:  # granflow simulate resumes it only if the physics is the same
+            print(f"{out}: parameters changed; {ckpt} is kept for granflow simulate, which "
+                  "resumes it only if just the stopping parameters changed "
+                  "(granflow.simulate.keep_matching_checkpoint)", file=sys.stderr)
     atomic_write_bytes(out, text.encode())
 
 
