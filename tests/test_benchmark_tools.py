@@ -347,3 +347,34 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     with pytest.raises(ValueError, match="another --out"):
         ff.main(args[:-5] + ["per_pair"])
     assert calls == [] and len(bases) == 1
+
+
+def test_arrest_tests_counts_where_granflow_and_the_papers_test_disagree(tmp_path, capsys,
+                                                                        monkeypatch):
+    """benchmarks/arrest_tests.py on three synthetic runs with known answers: a clean arrest
+    (both agree, paper time 38), a rattler-held pile that granflow calls arrested (ratio 1.5e-3:
+    the paper's test does not), a flowing run (both agree)."""
+    import json
+    import sys
+
+    import xarray as xr
+
+    at = _load("arrest_tests")
+    t = np.round(np.arange(0.0, 120.0, 0.0025), 10)
+    series = {"clean": 10.0 * np.exp(-(t / 37.3) * np.log(1e6)),
+              "rattler": np.where(t > 60, 1.5e-3, 10.0), "flow": np.full_like(t, 3.0)}
+    states = {"clean": "arrested", "rattler": "arrested", "flow": "steady"}
+    for k, (name, ratio) in enumerate(series.items()):
+        d = tmp_path / "bracket" / "linear" / "lambda~0.5" / f"theta~{20 + k:.2f}" / "H~8"
+        d.mkdir(parents=True)
+        (d / "summary.json").write_text(json.dumps({"flow_state": states[name],
+                                                    "t_final": float(t[-1])}))
+        xr.Dataset({"energy_ratio": ("t", ratio)}, coords={"t": t}).to_netcdf(d / "series.nc")
+    rows = at.arrest_rows(tmp_path)
+    assert [(r["theta"], r["state"], r["paper_arrest"]) for r in rows] == [
+        (20.0, "arrested", 38.0), (21.0, "arrested", None), (22.0, "steady", None)]
+    monkeypatch.setattr(sys, "argv", ["arrest_tests.py", str(tmp_path)])
+    at.main()
+    out = capsys.readouterr().out
+    assert out.count("<- differs") == 1
+    assert "3 runs; granflow arrested, paper test not: 1; paper test arrested, granflow not: 0" in out

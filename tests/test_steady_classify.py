@@ -11,6 +11,7 @@ from granflow.steady.classify import (
     layered_state,
     layering_amplitude,
     oscillation_cycles,
+    paper_arrest_time,
 )
 
 
@@ -242,3 +243,28 @@ def test_slow_fluctuations_of_a_small_box_are_steady_not_accelerating():
     c = classify_flow(t, r, trend_window=100.0, min_onset=15.7)
     assert c.state == "steady", c.explain()
     assert 15.7 <= c.onset < 100.0
+
+
+def test_paper_arrest_time_is_the_drivers_sampled_test():
+    """The paper's arrest test as its driver applies it: the first whole time unit after
+    t = 10 and up to the horizon 500 at which the ratio is below 1e-5.  Series sampled every
+    t_c / 2 = 0.0025 as a run's series.nc."""
+    t = np.round(np.arange(0.0, 600.0, 0.0025), 10)
+    decay = 10.0 * np.exp(-(t / 37.3) * np.log(1e6))  # crosses 1e-5 at t = 37.3
+    assert paper_arrest_time(t, decay) == 38.0
+    # a dip between whole time units is not seen; a dip before t = 10 does not count
+    flowing = np.full_like(t, 1.0)
+    flowing[(t > 41.2) & (t < 41.8)] = 1e-7
+    flowing[t <= 10.0] = 1e-7
+    assert paper_arrest_time(t, flowing) is None
+    flowing[np.isclose(t, 42.0)] = 1e-7  # one whole-unit sample below: arrested there
+    assert paper_arrest_time(t, flowing) == 42.0
+    # an arrest after the horizon is a flow (the paper's setTimeMax(500))
+    late = 10.0 * np.exp(-(t / 530.0) * np.log(1e6))
+    assert paper_arrest_time(t, late) is None
+    assert paper_arrest_time(t, late, horizon=600.0) == 531.0
+    # a rattler-held ratio (1e-3): granflow's classifier may call the pile arrested, this
+    # test does not; the two are compared run by run by benchmarks/arrest_tests.py
+    assert paper_arrest_time(t, np.where(t > 60, 1.5e-3, 10.0)) is None
+    with pytest.raises(ValueError, match="every = 0 is out of range"):
+        paper_arrest_time(t, decay, every=0)

@@ -68,6 +68,7 @@ __all__ = [
     "oscillation_cycles",
     "layering_amplitude",
     "layered_state",
+    "paper_arrest_time",
 ]
 
 STATES = ("arrested", "steady", "accelerating", "layered", "oscillating", "undecided")
@@ -228,6 +229,30 @@ class FlowClassification:
         if "layering_amplitude" in s and not math.isnan(s["layering_amplitude"]):
             parts.append(f"layering={s['layering_amplitude']:.3f}")
         return "; ".join(parts)
+
+
+def paper_arrest_time(time, energy_ratio, *, threshold: float = ARREST_RATIO,
+                      after: float = 10.0, horizon: float = 500.0,
+                      every: float = 1.0) -> float | None:
+    """The paper's literal arrest test (§6; MercuryDPM's hstop driver of that paper): the run
+    is arrested at the first sample time t = k ``every`` (k integer), ``after`` < t <=
+    ``horizon``, at which E_kin/E_ela < ``threshold``; None if there is none (flowing).
+
+    An independent check of :func:`classify_flow`'s arrest rules (a hold time, rattler and
+    rocking rules) on a run's stored series (``series.nc``: ``t``, ``energy_ratio``).  That
+    ratio counts the rotational kinetic energy too, where the driver counts translation only,
+    so a run arrested by this test on granflow's series is arrested by the driver's as well.
+    """
+    t = np.asarray(time, dtype=float)
+    r = np.asarray(energy_ratio, dtype=float)
+    if t.shape != r.shape or t.ndim != 1:
+        raise ValueError("time and energy_ratio must be 1-D arrays of the same length")
+    if not (every > 0 and math.isfinite(every)):
+        raise ValueError(f"every = {every!r} is out of range: allowed (0, inf)")
+    k = np.round(t / every)
+    on_grid = np.abs(t - k * every) <= 1e-9 * np.maximum(1.0, np.abs(t))
+    hit = on_grid & (t > after) & (t <= horizon) & (r < threshold)
+    return float(t[hit][0]) if hit.any() else None
 
 
 def oscillation_cycles(
