@@ -17,7 +17,9 @@ as the cause:
   sqrt(lambda), e = 0.2; the paper's own species would be 0.005, 0.88), with
   ``--base-settle-time`` (an elastic pile settles slowly), ``--base-prep-mu`` (its friction;
   MercuryDPM's ChuteBottom settles without) and ``--base-fill-packing`` (the solid fraction the
-  pile is sized for, so that a denser settling still leaves ~12 layers).
+  pile is sized for, so that a denser settling still leaves ~12 layers); ``--base-band top``
+  keeps MercuryDPM's slice (the 1.2 lambda below the highest centre minus lambda/2) instead of
+  the paper's [9.3, 11] lambda.
 
 The flow's insertion (``numerics.insertion_growth``, see :mod:`granflow.engine.chute`) is the
 configuration's: pass a configuration file that sets it to test the initial column.
@@ -111,6 +113,10 @@ def main(argv=None):
     ap.add_argument("--base-fill-packing", type=float, default=None,
                     help="solid fraction the base pile is sized for (its settled thickness is "
                     "base.layers lambda when it settles to it: ~0.6 frictional, ~0.65 frictionless)")
+    ap.add_argument("--base-band", default=None, choices=("paper", "top"),
+                    help="slice of the pile kept as the base: paper ([9.3, 11] lambda of the "
+                    "nominal pile, default) or top (MercuryDPM: the 1.2 lambda below the "
+                    "highest centre - lambda/2)")
     ap.add_argument("--base-settle-time", type=float, default=None,
                     help="longest settling of the base pile (x sqrt(lambda); default: the "
                     "configuration's base.settle_time)")
@@ -133,7 +139,8 @@ def main(argv=None):
     bcfg = G.base_settings(config)
     settling = {k: v for k, v in (("prep_t_c", args.base_prep_tc), ("prep_e", args.base_prep_e),
                                   ("prep_mu_c", args.base_prep_mu),
-                                  ("fill_packing", args.base_fill_packing)) if v is not None}
+                                  ("fill_packing", args.base_fill_packing),
+                                  ("band", args.base_band)) if v is not None}
     settle_time = float(args.base_settle_time if args.base_settle_time is not None
                         else bcfg.get("settle_time", 30.0))
     BaseConfig(lam=args.lam, Lx=Lx, Ly=Ly, settle_time=settle_time,

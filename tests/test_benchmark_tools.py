@@ -317,7 +317,7 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     out = tmp_path / "out"
     args = ["--configfile", str(REPO / "config" / "reference-lambda-half.yaml"), "--lam", "0.5",
             "--H", "16", "24", "--out", str(out), "--base-prep-mu", "0",
-            "--base-fill-packing", "0.648", "--base-species", "absolute",
+            "--base-fill-packing", "0.648", "--base-band", "top", "--base-species", "absolute",
             "--base-prep-tc", "0.005", "--base-prep-e", "0.88"]
     rows = ff.main(args)
     for H, lo, hi, ok in rows:
@@ -330,7 +330,7 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     assert first[16.0] == pytest.approx(19.40, abs=0.01)  # Table 1 (the configuration's prior)
     assert first[24.0] == pytest.approx(19.07, abs=0.01)
     assert bases == [{"base_layers": 12.0, "settle_time": 30.0, "prep_t_c": 0.005,
-                      "prep_e": 0.88, "prep_mu_c": 0.0, "fill_packing": 0.648}]
+                      "prep_e": 0.88, "prep_mu_c": 0.0, "fill_packing": 0.648, "band": "top"}]
     runs = hb.bracket_runs(out)
     assert len(runs) == len(calls) and set(runs.H) == {16.0, 24.0}
     # a rerun simulates nothing

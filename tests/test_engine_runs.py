@@ -418,3 +418,41 @@ def test_workflow_run_params_keeps_an_identified_checkpoint_for_simulate(small_j
     np.savez(ckpt, **arrays)
     run_params(old)
     assert not ckpt.exists() and "removed the stale" in capsys.readouterr().err
+
+
+def test_base_bands_cut_the_papers_and_mercurydpms_slices_of_one_pile(monkeypatch):
+    """``band="paper"`` keeps z in [layers - 2.7, layers - 1] lambda of the nominal pile (004
+    §5: [9.3, 11] of 12 layers);
+    ``band="top"`` keeps what MercuryDPM's ``ChuteBottom::makeRoughBottom`` keeps: centres in
+    (z_max - 3.4 r, z_max - r), r = lambda / 2, z_max the highest centre of the settled pile
+    (its actual surface).  Both put the top of the slice at z = 0; checked particle by
+    particle against the settled pile."""
+    from granflow.engine import chute
+
+    lam, L, layers = 1.0, 5.0, 6.0  # a 6-layer pile: the cut is the same rule, faster
+    for band in ("paper", "top"):
+        captured = {}
+        orig = chute.ParticleSystem.set_particles
+
+        def keep(self, *a, orig=orig, **k):
+            captured["sys"] = self
+            return orig(self, *a, **k)
+
+        monkeypatch.setattr(chute.ParticleSystem, "set_particles", keep)
+        base = chute.prepare_rough_base(chute.BaseConfig(lam=lam, Lx=L, Ly=L, seed=1,
+                                                         base_layers=layers, band=band))
+        monkeypatch.undo()
+        pile = captured["sys"].pos
+        z = pile[:, 2]
+        if band == "top":
+            top = z.max() - 0.5 * lam
+            sel = (z > top - 2.4 * 0.5 * lam) & (z < top)
+        else:
+            top = (layers - 1.0) * lam
+            sel = (z >= (layers - 2.7) * lam) & (z <= top)
+        expect = pile[sel] - np.array([0.0, 0.0, top])
+        key = lambda a: a[np.lexsort((a[:, 0], a[:, 1], a[:, 2]))]
+        assert len(base) == sel.sum() > 0
+        assert np.array_equal(key(base), key(expect)), band
+    with pytest.raises(ValueError, match=r"band = 'middle' is unknown: allowed \['paper', 'top'\]"):
+        chute.BaseConfig(band="middle").validate()

@@ -53,6 +53,13 @@ DEFAULT_INSERTION_GROWTH = 0.01
 PREP_MAX_OVERLAP = 0.15
 
 
+#: Which slice of the settled pile becomes the rough base: "paper" (004 §5: z in
+#: [base_layers - 2.7, base_layers - 1] lambda of the nominal pile) or "top" (MercuryDPM's
+#: ``ChuteBottom::makeRoughBottom``: the 1.2 lambda below z_max - lambda/2, z_max the highest
+#: particle centre -- measured from the pile's actual surface, thinner).
+BASE_BANDS = ("paper", "top")
+
+
 @dataclass
 class BaseConfig:
     """Rough-base preparation parameters (physics.md §3)."""
@@ -67,6 +74,7 @@ class BaseConfig:
     prep_e: float = 0.2              # and restitution (strongly damped: settles quickly)
     prep_mu_c: float = 0.5           # and sliding friction (MercuryDPM's ChuteBottom: 0)
     fill_packing: float = BASE_FILL_PACKING  # solid fraction the pile is sized for
+    band: str = "paper"              # which slice of the pile is kept (BASE_BANDS)
 
     def validate(self):
         check_range("lam", self.lam, 0.0, 10.0)
@@ -78,6 +86,8 @@ class BaseConfig:
         check_range("prep_e", self.prep_e, 0.0, 1.0, lo_open=True)
         check_range("prep_mu_c", self.prep_mu_c, 0.0, 10.0)
         check_range("fill_packing", self.fill_packing, 0.3, 0.74)
+        if self.band not in BASE_BANDS:
+            raise ValueError(f"band = {self.band!r} is unknown: allowed {sorted(BASE_BANDS)}")
         if self.lam > 0 and (self.Lx < 3 * self.lam or self.Ly < 3 * self.lam):
             raise ValueError(f"Lx, Ly = {self.Lx}, {self.Ly} must be at least 3 lambda = {3 * self.lam}")
         return self
@@ -119,9 +129,14 @@ def prepare_rough_base(cfg: BaseConfig) -> np.ndarray:
     log.info("base preparation: lambda=%g, %d particles settled for t=%.2f (E_kin=%.3g)",
              lam, n, sys_.time, sys_.energies()["kinetic"])
     z = sys_.pos[:, 2]
-    keep = (z >= (cfg.base_layers - 2.7) * lam) & (z <= (cfg.base_layers - 1.0) * lam)
+    if cfg.band == "top":  # MercuryDPM: (z_max - 3.4 r, z_max - r), r = lambda / 2
+        top = float(z.max()) - 0.5 * lam
+        keep = (z > top - 1.2 * lam) & (z < top)
+    else:
+        top = (cfg.base_layers - 1.0) * lam
+        keep = (z >= (cfg.base_layers - 2.7) * lam) & (z <= top)
     base = sys_.pos[keep].copy()
-    base[:, 2] -= (cfg.base_layers - 1.0) * lam
+    base[:, 2] -= top
     order = np.lexsort((base[:, 0], base[:, 1], base[:, 2]))
     return base[order]
 
