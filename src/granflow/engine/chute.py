@@ -9,7 +9,8 @@ Implements the protocol of Weinhart et al. (2012) §5 (physics.md §3):
   at z = 0.  Settling uses a soft, strongly damped preparation species (the frozen positions
   are all that is kept; the flow never feels that species): by default with friction 0.5
   (bulk solid fraction ~0.61); ``prep_mu_c = 0`` as MercuryDPM's ChuteBottom (~0.65, with
-  ``fill_packing`` ~0.65 so that the pile still settles ~12 layers thick).
+  ``fill_packing`` ~0.65 so that the pile still settles ~12 layers thick).  ``band="top"``
+  keeps MercuryDPM's slice instead (the 1.2 lambda below the highest centre minus lambda/2).
 * **flow insertion** — random positions in [0, Lx] x [0, Ly] x [0, I], I = H initially;
   overlapping trials are rejected and I grows by ``insertion_growth`` after each rejection.
   The paper's text says 0.01 and "initial packing about 0.3", which disagree: 0.01 gives a
