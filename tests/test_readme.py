@@ -116,6 +116,11 @@ README_COMMANDS = {
          "the script's chains with the simulation replaced by a known demarcation (the same "
          "configuration, whose runs now insert at 5e-5: tests/test_engine_runs.py checks that "
          "column against the paper's 0.3); the real chains took ~70 min on 2 cores"),
+    ".venv/bin/python benchmarks/hstop_fresh_falls.py --configfile config/reference-lambda-half.yaml --lam 0.5 --H 2 4 6 8 12 16 24 --base-prep-mu 0 --base-fill-packing 0.648 --base-band top --out results/fresh-lambda-half-mercury-base --jobs 2":
+        ("tests/test_benchmark_tools.py::test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base",
+         "the script's chains with the simulation replaced by a known demarcation, with the "
+         "same base options (--base-band top is passed to the base; tests/test_engine_runs.py "
+         "checks the slice particle by particle); the real chains took ~35 min on 2 cores"),
     ".venv/bin/python benchmarks/hstop_staircase.py --configfile config/reference-lambda-half.yaml --lam 0.5 --out results/staircase-lambda-half":
         ("tests/test_benchmark_tools.py::test_hstop_staircase_carries_each_state_to_the_next_run",
          "the script's walk, starts and intervals with the simulation replaced by a known "
