@@ -126,28 +126,13 @@ def _cost_line(stdout: str) -> dict:
             "wall_s": float(m.group(5)), "segments": int(m.group(6))}
 
 
-class _Killed(Exception):
-    pass
+def _kill_at(t):
+    """An observer that ends the process's run (KeyboardInterrupt, like a kill) once t passes
+    ``t`` -- test_restart's; with checkpoint_every_s = 0 the checkpoint of the sample before is
+    on disk."""
+    from test_restart import _Interrupt
 
-
-class _KillAt:
-    """An observer that ends the process's run (like a kill) once t passes ``t``; with
-    checkpoint_every_s = 0 the checkpoint of the sample before is on disk."""
-
-    name = "kill_at"
-
-    def __init__(self, t):
-        self.t = t
-
-    def sample(self, system):
-        if system.time > self.t:
-            raise _Killed
-
-    def state_dict(self):
-        return {}
-
-    def load_state_dict(self, state):
-        pass
+    return _Interrupt(t)
 
 
 def _params_of(pfile, **changes):
@@ -157,9 +142,9 @@ def _params_of(pfile, **changes):
 def _killed_at_2(params, out, base):
     from granflow.simulate import simulate
 
-    with pytest.raises(_Killed):
+    with pytest.raises(KeyboardInterrupt):
         simulate(dict(params, checkpoint_every_s=0.0), out, base_file=base,
-                 extra_observers=[_KillAt(2.0)])
+                 extra_observers=[_kill_at(2.0)])
     assert (out / "checkpoint.npz").exists()
 
 
