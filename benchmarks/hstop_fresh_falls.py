@@ -137,10 +137,16 @@ def main(argv=None):
     out = Path(args.out)
     Lx, Ly = G.box(config, "chute")
     bcfg = G.base_settings(config)
-    settling = {k: v for k, v in (("prep_t_c", args.base_prep_tc), ("prep_e", args.base_prep_e),
-                                  ("prep_mu_c", args.base_prep_mu),
-                                  ("fill_packing", args.base_fill_packing),
-                                  ("band", args.base_band)) if v is not None}
+    # the configuration's base (where it differs from BaseConfig's defaults), then the options
+    defaults = BaseConfig()
+    settling = {k: bcfg[c] for k, c in (("prep_mu_c", "settle_mu_c"),
+                                        ("fill_packing", "fill_packing"), ("band", "band"))
+                if bcfg[c] != getattr(defaults, k)}
+    settling.update({k: v for k, v in (("prep_t_c", args.base_prep_tc),
+                                       ("prep_e", args.base_prep_e),
+                                       ("prep_mu_c", args.base_prep_mu),
+                                       ("fill_packing", args.base_fill_packing),
+                                       ("band", args.base_band)) if v is not None})
     settle_time = float(args.base_settle_time if args.base_settle_time is not None
                         else bcfg.get("settle_time", 30.0))
     BaseConfig(lam=args.lam, Lx=Lx, Ly=Ly, settle_time=settle_time,

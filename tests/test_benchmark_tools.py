@@ -347,6 +347,15 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     with pytest.raises(ValueError, match="another --out"):
         ff.main(args[:-5] + ["per_pair"])
     assert calls == [] and len(bases) == 1
+    # a configuration's own `base:` settings make the base (as the workflow's base rule does)
+    cfg = tmp_path / "mercury.yaml"
+    cfg.write_text((REPO / "config" / "reference-lambda-half.yaml").read_text()
+                   .replace("  seed: 1\n\ncampaigns:", "  seed: 1\n  settle_mu_c: 0.0\n"
+                            "  band: top\n\ncampaigns:"))
+    assert "band: top" in cfg.read_text()
+    bases.clear()
+    ff.main(["--configfile", str(cfg), "--lam", "0.5", "--H", "16", "--out", str(tmp_path / "m")])
+    assert bases == [{"base_layers": 12.0, "settle_time": 30.0, "prep_mu_c": 0.0, "band": "top"}]
 
 
 def test_arrest_tests_counts_where_granflow_and_the_papers_test_disagree(tmp_path, capsys,

@@ -133,6 +133,17 @@ def test_default_campaign_covers_every_closure():
     assert "SNAPSHOT_INTERVAL_EFFECT" not in reductions_vs_paper(odd)
     # all runs share one base per (lambda, box)
     assert len({G.base_path(cfg, r) for r in runs}) == 1
+    # the base's making: the default (frictional pile, the text's band) states nothing; another
+    # settling friction or MercuryDPM's top slice is stated, with the effect measured
+    assert "base pile settled" not in text and "ChuteBottom" not in text
+    assert G.base_settings(cfg) == {"layers": 12.0, "settle_time": 30.0, "seed": 1,
+                                    "settle_mu_c": 0.5, "fill_packing": 0.6, "band": "paper"}
+    mdpm = copy.deepcopy(cfg)
+    mdpm["base"].update(settle_mu_c=0.0, fill_packing=0.648, band="top")
+    text = reductions_vs_paper(mdpm)
+    assert "base pile settled with sliding friction 0 (granflow's default 0.5" in text
+    assert "base cut as MercuryDPM's ChuteBottom" in text
+    assert G.base_settings(mdpm)["band"] == "top" and G.base_settings(mdpm)["settle_mu_c"] == 0.0
 
 
 def test_weinhart2012_is_the_paper_protocol():

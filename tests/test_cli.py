@@ -33,6 +33,34 @@ def test_help_lists_every_command():
         assert command in sub
 
 
+def test_prepare_base_makes_the_base_its_options_name(tmp_path):
+    """`granflow prepare-base --settle-mu-c --fill-packing --band` writes exactly the base that
+    BaseConfig with those settings gives (here MercuryDPM's: a frictionless pile, its top
+    slice), not the default one; a bad value is refused naming the option's range."""
+    import numpy as np
+
+    from granflow.engine.chute import BaseConfig, prepare_rough_base
+
+    out = tmp_path / "base.npy"
+    opts = ["--lam", "1", "--Lx", "4", "--Ly", "4", "--seed", "2", "--base-layers", "5",
+            "--settle-time", "5"]
+    proc = subprocess.run([*GRANFLOW, "prepare-base", *opts, "--settle-mu-c", "0",
+                           "--fill-packing", "0.648", "--band", "top", "--out", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    common = dict(lam=1.0, Lx=4.0, Ly=4.0, seed=2, base_layers=5.0, settle_time=5.0)
+    expected = prepare_rough_base(BaseConfig(prep_mu_c=0.0, fill_packing=0.648, band="top",
+                                             **common))
+    default = prepare_rough_base(BaseConfig(**common))
+    made = np.load(out)
+    assert np.array_equal(made, expected)
+    assert made.shape != default.shape or not np.array_equal(made, default)
+    bad = subprocess.run([*GRANFLOW, "prepare-base", *opts, "--settle-mu-c", "-1", "--out",
+                          str(tmp_path / "bad.npy")], capture_output=True, text=True, timeout=300)
+    assert bad.returncode != 0 and "prep_mu_c = -1" in bad.stderr and "out of range" in bad.stderr
+    assert not (tmp_path / "bad.npy").exists()
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="process names: Linux")
 def test_running_simulation_has_a_name_and_a_pid_file_and_stops_cleanly(tmp_path):
     base = tmp_path / "base.npy"

@@ -156,6 +156,24 @@ def test_dry_run_of_the_tiny_campaign_lists_every_rule(tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+def test_base_rule_makes_the_base_the_config_names(tmp_path):
+    """`base:` settling friction, fill and band reach the base job's command (dry run, shell
+    commands printed); left out, the defaults (a frictional pile, the text's band) do."""
+    overlay = tmp_path / "base.yaml"
+    overlay.write_text("base: {settle_mu_c: 0.0, fill_packing: 0.648, band: top}\n")
+    commands = {}
+    for name, extra in (("mercury", [str(overlay)]), ("default", [])):
+        work = tmp_path / name
+        work.mkdir()
+        cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(work), "-n",
+               "-p", "--configfile", str(TINY), *extra]
+        proc = _check(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
+        commands[name] = [line for line in proc.stdout.splitlines() if "prepare-base" in line]
+    assert len(commands["mercury"]) == 1, commands
+    assert "--settle-mu-c 0.0 --fill-packing 0.648 --band top" in commands["mercury"][0]
+    assert "--settle-mu-c 0.5 --fill-packing 0.6 --band paper" in commands["default"][0]
+
+
 def _bisection_plan(tmp_path, bisection_yaml):
     """Dry-run plan of the tiny campaign with ``hstop_bisection`` keys overlaid: (output, job
     counts by rule)."""
@@ -293,6 +311,8 @@ BAD_CONFIGS = {
                        "campaigns.segregation.sigma = [0.5, 1.0]", "at least 3 distinct size"),
     "slurm_over_limit": ("cluster: {over_limit: sometimes}", "cluster.over_limit = 'sometimes'",
                          "['cap', 'refuse']"),
+    "base_band": ("base: {band: middle}", "base.band = 'middle'", "['paper', 'top']"),
+    "base_settle_friction": ("base: {settle_mu_c: -0.5}", "base.settle_mu_c = -0.5", ">= 0"),
     "unknown_nested_key": ("campaigns: {chute: {enabled: true, hstop_search: {enabled: false, "
                            "H00: 3}}}", "unknown key(s) ['H00']", "allowed keys"),
 }

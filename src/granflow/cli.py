@@ -207,7 +207,10 @@ def cmd_prepare_base(args):
     check_output_folder(Path(args.out).parent, 64e6, what="the base preparation")
 
     pos = prepare_base_file(args.lam, args.Lx, args.Ly, args.seed, args.out,
-                            base_layers=args.base_layers, settle_time=args.settle_time)
+                            base_layers=args.base_layers, settle_time=args.settle_time,
+                            **{k: v for k, v in (("prep_mu_c", args.settle_mu_c),
+                                                 ("fill_packing", args.fill_packing),
+                                                 ("band", args.band)) if v is not None})
     print(f"{args.out}: {len(pos)} base particles (lambda = {args.lam})")
 
 
@@ -287,6 +290,14 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--base-layers", type=float, default=12.0)
     p.add_argument("--settle-time", type=float, default=30.0)
+    p.add_argument("--settle-mu-c", type=float, default=None,
+                   help="sliding friction of the settling species (default 0.5; MercuryDPM's "
+                        "ChuteBottom 0)")
+    p.add_argument("--fill-packing", type=float, default=None,
+                   help="solid fraction the pile is sized for (default 0.6)")
+    p.add_argument("--band", default=None, choices=("paper", "top"),
+                   help="slice of the settled pile kept: paper ([layers - 2.7, layers - 1] "
+                        "lambda, default) or top (MercuryDPM's ChuteBottom)")
     p.add_argument("--out", required=True, help="output .npy file")
     p.set_defaults(func=cmd_prepare_base)
 

@@ -466,8 +466,9 @@ def set_threads(threads: int | None):
 def prepare_base_file(lam, Lx, Ly, seed, out, base_layers=12.0, settle_time=30.0, **settling):
     """Prepare a rough base and write its positions atomically to ``out`` (.npy).
 
-    ``settling``: ``prep_t_c``, ``prep_e`` of :class:`~granflow.engine.chute.BaseConfig` (the
-    species the pile settles with; default a soft, strongly damped one)."""
+    ``settling``: ``prep_t_c``, ``prep_e``, ``prep_mu_c`` (the species the pile settles with;
+    default a soft, strongly damped, frictional one), ``fill_packing`` and ``band`` of
+    :class:`~granflow.engine.chute.BaseConfig`."""
     cfg = BaseConfig(lam=lam, Lx=Lx, Ly=Ly, seed=seed, base_layers=base_layers,
                      settle_time=settle_time, **settling).validate()
     pos = prepare_rough_base(cfg)

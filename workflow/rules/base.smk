@@ -1,4 +1,5 @@
-# Rough bases: prepared once per (lambda, box) and reused by every run over them
+# Rough bases: prepared once per (lambda, box) and reused by every run over them, made as the
+# config's `base:` says (pile thickness, settling time and friction, fill, kept band)
 # (Weinhart et al. 2012 §5: settle a layer of diameter-lambda particles, keep a band, freeze it).
 
 
@@ -14,6 +15,9 @@ rule base:
         layers=G.base_settings(config)["layers"],
         settle=G.base_settings(config)["settle_time"],
         seed=G.base_settings(config)["seed"],
+        mu=G.base_settings(config)["settle_mu_c"],
+        fill=G.base_settings(config)["fill_packing"],
+        band=G.base_settings(config)["band"],
     threads: 1
     resources:
         **cluster_resources("base"),
@@ -22,7 +26,8 @@ rule base:
     shell:
         "{params.gf} -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
         " --Ly {wildcards.Ly} --seed {params.seed} --base-layers {params.layers}"
-        " --settle-time {params.settle} --out {output} > {log} 2>&1"
+        " --settle-time {params.settle} --settle-mu-c {params.mu} --fill-packing {params.fill}"
+        " --band {params.band} --out {output} > {log} 2>&1"
 
 
 # Compile-warm: tiny runs of each (kind, contact law) of the campaign, beside the base job, so

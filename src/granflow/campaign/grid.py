@@ -212,9 +212,18 @@ def box(config: dict, kind: str) -> tuple[float, float]:
 
 
 def base_settings(config: dict) -> dict:
+    """How the campaign's rough bases are made (``base:`` of the config, with
+    :class:`~granflow.engine.chute.BaseConfig`'s defaults for the keys it leaves out)."""
+    from ..engine.chute import BaseConfig
+
     b = config.get("base") or {}
-    return {"layers": float(b.get("layers", 12.0)), "settle_time": float(b.get("settle_time", 30.0)),
-            "seed": int(b.get("seed", 1))}
+    d = BaseConfig()
+    return {"layers": float(b.get("layers", d.base_layers)),
+            "settle_time": float(b.get("settle_time", d.settle_time)),
+            "seed": int(b.get("seed", d.seed)),
+            "settle_mu_c": float(b.get("settle_mu_c", d.prep_mu_c)),
+            "fill_packing": float(b.get("fill_packing", d.fill_packing)),
+            "band": str(b.get("band", d.band))}
 
 
 def base_path(config: dict, p: RunPoint) -> str:

@@ -81,6 +81,18 @@ def config_differences(config: dict) -> list[str]:
     base = config.get("base", {}) or {}
     if "layers" in base and not _same(base["layers"], PAPER["base_layers"]):
         out.append(f"base settled from {_fmt(base['layers'])} layers (paper 12)")
+    if base.get("band", "paper") != "paper":
+        out.append("base cut as MercuryDPM's ChuteBottom (the 1.2 lambda below the settled pile's "
+                   "highest centre - lambda/2) instead of the text's band [9.3, 11] lambda")
+    # the paper does not say how its pile settled; granflow's default uses a frictional soft
+    # species, MercuryDPM's ChuteBottom a frictionless one: say which, with what it is worth
+    from ..engine.chute import BaseConfig
+
+    if "settle_mu_c" in base and not _same(base["settle_mu_c"], BaseConfig.prep_mu_c):
+        out.append(f"base pile settled with sliding friction {_fmt(float(base['settle_mu_c']))} "
+                   f"(granflow's default {BaseConfig.prep_mu_c:g}; the paper does not say, "
+                   "MercuryDPM settles without friction; measured at lambda = 1/2: single hstop "
+                   "brackets move by up to 1.75 deg between bases made otherwise)")
     camps = config.get("campaigns", {}) or {}
     for kind in ("chute", "segregation"):
         c = camps.get(kind, {}) or {}
