@@ -7,9 +7,13 @@ arrested/flowing bracket per (contact law, lambda, H, replicate) as the library'
 settings (200 bootstrap refits, seed 1) and prints the brackets (beside Table 1's theta_stop at
 each height) and the fit against Table 1 (per lambda) with the rule of ``paper_table.py`` (2 stderr or 5 %, identified only).  Later
 results folders override earlier ones run by run (a chain rerun elsewhere replaces the
-original's runs at the same angle and height).
+original's runs at the same angle and height), unless ``--realisations``: then each folder is
+a campaign over another base realisation (its own ``base.seed`` or making), whose chains are
+data of their own (replicate ``1000 i + k`` for insertion replicate k of folder i), so that the
+fit's scatter and stderrs include the scatter between bases.
 
     .venv/bin/python benchmarks/hstop_brackets.py results/reference-lambda1
+    .venv/bin/python benchmarks/hstop_brackets.py --realisations results/base1 results/base2
 """
 
 from __future__ import annotations
@@ -32,10 +36,17 @@ POINT = re.compile(r"(?P<law>[A-Za-z_]+)/lambda~(?P<lam>[0-9.]+)/theta~(?P<theta
                    r"H~(?P<H>[0-9.]+)(?:/seed~(?P<seed>\d+))?/summary\.json$")
 
 
-def bracket_runs(*roots) -> pd.DataFrame:
-    """theta, H, state, replicate of the bracket and chute runs under the results folders."""
+#: replicate index offset per results folder under ``--realisations`` (insertion replicates
+#: of one campaign stay below it)
+REALISATION_STRIDE = 1000
+
+
+def bracket_runs(*roots, realisations: bool = False) -> pd.DataFrame:
+    """theta, H, state, replicate (and ``realisation``, the folder's index) of the bracket and
+    chute runs under the results folders.  ``realisations``: every folder's runs are kept apart
+    (replicate + 1000 x folder index) instead of a later folder's run replacing an earlier's."""
     runs: dict[str, dict] = {}
-    for root in map(Path, roots):
+    for i, root in enumerate(map(Path, roots)):
         for kind in ("bracket", "chute"):
             for f in sorted((root / kind).glob("**/summary.json")):
                 m = POINT.search(f.as_posix())
@@ -44,13 +55,19 @@ def bracket_runs(*roots) -> pd.DataFrame:
                 summ = json.loads(f.read_text())
                 # an engine stop before any flow state is no evidence (as in the library's fit)
                 stop = ENGINE_STOP_NO_STATE if engine_stop_without_flow_state(summ) else ""
-                runs[f.relative_to(root).as_posix()] = {
+                rep = int(m["seed"] or 0)
+                if rep >= REALISATION_STRIDE:
+                    raise ValueError(f"{f}: replicate {rep} >= {REALISATION_STRIDE} is not "
+                                     "supported")
+                key = f.relative_to(root).as_posix()
+                runs[(i, key) if realisations else key] = {
                     "theta": float(m["theta"]), "H": float(m["H"]), "state": summ["flow_state"],
-                    "replicate": int(m["seed"] or 0), "lambda": float(m["lam"]),
+                    "replicate": rep + (REALISATION_STRIDE * i if realisations else 0),
+                    "realisation": i if realisations else 0, "lambda": float(m["lam"]),
                     "contact_law": m["law"], "stop_reason": stop}
     return pd.DataFrame(list(runs.values()),
-                        columns=["theta", "H", "state", "replicate", "lambda", "contact_law",
-                                 "stop_reason"])
+                        columns=["theta", "H", "state", "replicate", "realisation", "lambda",
+                                 "contact_law", "stop_reason"])
 
 
 def _paper_table():
@@ -97,8 +114,11 @@ def hstop_tables(runs: pd.DataFrame) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", type=Path, nargs="+")
+    ap.add_argument("--realisations", action="store_true",
+                    help="each results folder is a campaign over another base realisation: "
+                         "its chains are data of their own, never replaced by another's")
     args = ap.parse_args()
-    runs = bracket_runs(*args.results)
+    runs = bracket_runs(*args.results, realisations=args.realisations)
     for (law, lam), (iv, fit, rows) in hstop_tables(runs).items():
         print(f"\n## contact law {law}, lambda = {lam:g}\n")
         print(with_paper_curve(iv, lam).sort_values(["H", "replicate"])

@@ -234,6 +234,17 @@ def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_pa
     assert np.allclose(iv_half["paper_offset"], 0.0, atol=0.006)
     half = {r["parameter"]: r for r in tables[("linear", 0.5)][2]}
     assert half["delta1"]["paper"] == 17.913 and half["delta1"]["agrees"], half
+    # --realisations: the second folder is a campaign over another base, its run at the same
+    # path is a datum of its own (replicate 1000 + k), not a replacement
+    both = hb.bracket_runs(root, rerun, realisations=True)
+    assert len(both) == len(hb.bracket_runs(root)) + 1
+    assert set(both.realisation) == {0, 1} and set(both[both.realisation == 1].replicate) == {1000}
+    iv3 = hb.hstop_tables(both)[("linear", 1.0)][0]
+    assert len(iv3) == len(iv) + 1  # the other base's one-sided bracket at H = 24
+    own = iv3[(iv3.H == 24.0) & (iv3.replicate == 0)].iloc[0]
+    assert own["theta_flowing_min"] == pytest.approx(float(flowing.theta.iloc[0]))
+    other = iv3[iv3.replicate == 1000].iloc[0]
+    assert other["theta_arrested_max"] == pytest.approx(float(flowing.theta.iloc[0]))
 
 
 def test_hstop_staircase_carries_each_state_to_the_next_run(tmp_path, monkeypatch):
