@@ -120,6 +120,10 @@ def main(argv=None):
     ap.add_argument("--base-settle-time", type=float, default=None,
                     help="longest settling of the base pile (x sqrt(lambda); default: the "
                     "configuration's base.settle_time)")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="insertion seed of the flow (default: the configuration's numerics.seed)")
+    ap.add_argument("--base-seed", type=int, default=None,
+                    help="seed of the base realisation (default: the configuration's base.seed)")
     ap.add_argument("--jobs", type=int, default=1, help="chains run side by side")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
@@ -133,7 +137,14 @@ def main(argv=None):
     from granflow.engine.chute import BaseConfig
     from granflow.simulate import prepare_base_file
 
+    for name, value in (("--seed", args.seed), ("--base-seed", args.base_seed)):
+        if value is not None and value < 0:
+            raise ValueError(f"{name} = {value}: must be an integer >= 0")
     config = configure(merged_config(args.configfile), args.base_species)
+    if args.seed is not None:
+        config["numerics"] = dict(config.get("numerics") or {}, seed=args.seed)
+    if args.base_seed is not None:
+        config["base"] = dict(config.get("base") or {}, seed=args.base_seed)
     out = Path(args.out)
     Lx, Ly = G.box(config, "chute")
     bcfg = G.base_settings(config)
@@ -160,6 +171,8 @@ def main(argv=None):
           flush=True)
     # one results folder holds runs of one base and one flow-base species: refuse a mix
     made = {"base_species": args.base_species, "settling": settling, "settle_time": settle_time}
+    made.update({k: v for k, v in (("seed", args.seed), ("base_seed", args.base_seed))
+                 if v is not None})  # (older records, made without the options, stay valid)
     record = out / "fresh_falls.json"
     if record.exists() and json.loads(record.read_text()) != made:
         raise ValueError(f"{out} holds runs with {json.loads(record.read_text())}, not {made}: "

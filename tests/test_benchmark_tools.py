@@ -309,9 +309,12 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     hb = _load("hstop_brackets")
     calls, bases = [], []
 
+    seeds = {}
+
     def fake_simulate(params, out_dir, base_file=None, threads=1, from_state=None, top_up=False):
         calls.append((params["H"], params["theta"], params.get("base_t_c"), params.get("base_e"),
                       from_state))
+        seeds.setdefault("run", set()).add(params["seed"])
         out_dir.mkdir(parents=True, exist_ok=True)
         arrested = params["theta"] < 19.9 + 0.02 * params["H"]
         (out_dir / "summary.json").write_text(json.dumps(dict(
@@ -321,6 +324,7 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     monkeypatch.setattr(gsim, "simulate", fake_simulate)
     def fake_base(lam, Lx, Ly, seed, out, **kw):
         bases.append(kw)
+        seeds.setdefault("base", []).append(seed)
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_bytes(b"")
 
@@ -367,6 +371,18 @@ def test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base(tmp_path,
     bases.clear()
     ff.main(["--configfile", str(cfg), "--lam", "0.5", "--H", "16", "--out", str(tmp_path / "m")])
     assert bases == [{"base_layers": 12.0, "settle_time": 30.0, "prep_mu_c": 0.0, "band": "top"}]
+    # --seed (the flow's insertion) and --base-seed (another base realisation) reach the runs
+    # and the base; a negative one is refused before anything runs
+    bases.clear()
+    calls.clear()
+    seeds.clear()
+    ff.main(["--configfile", str(cfg), "--lam", "0.5", "--H", "16", "--seed", "2",
+             "--base-seed", "3", "--out", str(tmp_path / "s")])
+    assert seeds == {"base": [3], "run": {2}}
+    assert json.loads((tmp_path / "s" / "fresh_falls.json").read_text())["base_seed"] == 3
+    with pytest.raises(ValueError, match="--base-seed = -1: must be an integer >= 0"):
+        ff.main(["--lam", "0.5", "--H", "16", "--base-seed", "-1", "--out", str(tmp_path / "x")])
+    assert not (tmp_path / "x").exists()
 
 
 def test_arrest_tests_counts_where_granflow_and_the_papers_test_disagree(tmp_path, capsys,

@@ -121,6 +121,11 @@ README_COMMANDS = {
          "the script's chains with the simulation replaced by a known demarcation, with the "
          "same base options (--base-band top is passed to the base; tests/test_engine_runs.py "
          "checks the slice particle by particle); the real chains took ~35 min on 2 cores"),
+    ".venv/bin/python benchmarks/hstop_brackets.py --realisations results/fresh-lambda-half-dense results/fresh-lambda-half-mercury-base results/fresh-lambda-half-mu0 results/fresh-lambda-half-top results/fresh-lambda-half-seed2":
+        ("tests/test_benchmark_tools.py::test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override",
+         "the fit over synthetic bracket runs, with --realisations over two results folders "
+         "(each folder's runs kept apart); the five folders are the fresh-fall chains above "
+         "(~35-70 min on 2 cores each)"),
     ".venv/bin/python benchmarks/hstop_staircase.py --configfile config/reference-lambda-half.yaml --lam 0.5 --out results/staircase-lambda-half":
         ("tests/test_benchmark_tools.py::test_hstop_staircase_carries_each_state_to_the_next_run",
          "the script's walk, starts and intervals with the simulation replaced by a known "
