@@ -265,3 +265,29 @@ def snapshot_interval_note(interval_tc: float) -> str:
                     f"base level by up to {e['max_base_shift']:g} d: the snapshots undersample "
                     "the contact stress")
     return ""
+
+
+#: hstop brackets over other base realisations (measured 2026-11-27 at lambda = 1/2, the
+#: paper's species and insertion column, 10 x 5, fresh-fall chains at H = 2 ... 24: a frictional
+#: pile cut to the paper's band, a frictionless one cut to it and to MercuryDPM's top slice,
+#: the frictional pile's top slice; README "Nor the base's making, beyond one realisation").
+#: ``max_bracket_shift``: the largest move of one bracket between bases (H = 4);
+#: ``mean_offset_range``: the brackets' mean offset from Table 1's curve on each full base;
+#: ``typical_bracket_scatter``: what one base and one insertion seed place a bracket to.
+BASE_REALISATION_EFFECT = {
+    "lambda": 0.5, "max_bracket_shift": 1.75, "mean_offset_range": (0.05, 0.55),
+    "typical_bracket_scatter": 0.5,
+}
+
+
+def base_realisation_note() -> str:
+    """What one base realisation leaves out of an hstop fit's stderrs
+    (:data:`BASE_REALISATION_EFFECT`)."""
+    e = BASE_REALISATION_EFFECT
+    lo, hi = e["mean_offset_range"]
+    return (f"all brackets of one lambda lie on one base realisation, whose own scatter is not "
+            f"in these stderrs: measured at lambda = {e['lambda']:g} (granflow.reference."
+            f"BASE_REALISATION_EFFECT), single brackets move by up to {e['max_bracket_shift']:g} "
+            f"deg between bases (about +-{e['typical_bracket_scatter']:g} deg typical) and the "
+            f"curve's mean offset from Table 1 by {lo:+.2f} ... {hi:+.2f} deg; campaigns over "
+            f"other base.seed values measure it")

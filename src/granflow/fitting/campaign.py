@@ -178,6 +178,10 @@ def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 20
             if int(no_state.sum()):
                 sel += (f"; {int(no_state.sum())} runs ended by an engine guard before they had "
                         f"a flow state are left out (no evidence either way)")
+            if lam > 0:  # a flat wall (lambda = 0) has no realisation
+                from ..reference import base_realisation_note
+
+                sel += "; " + base_realisation_note()
             for fn in ((fit_hstop, fit_hstop_eq38) if include_eq38 else (fit_hstop,)):
                 r = fn(runs=runs, lam=lam, contact_law=law, n_bootstrap=n_bootstrap, seed=seed)
                 r = r.replace(runs_used=tuple(_ids(runs)), selection=sel)
