@@ -402,6 +402,23 @@ def campaign(tmp_path_factory):
     return d, table, fits
 
 
+def test_collect_records_the_base_each_run_fell_onto(tmp_path):
+    """With the campaign's configuration the table gets ``base_seed`` (the configured
+    base.seed here: no replicate bases), a CF variable that reads back; without it, none."""
+    import xarray as xr
+
+    rows = _synthetic_rows(tmp_path)
+    config = {"name": "synthetic", "base": {"seed": 4}}
+    table = collect_table(rows, tmp_path / "t.nc", tmp_path / "t.csv", config=config)
+    assert set(table["base_seed"]) == {4.0}
+    back = read_table(tmp_path / "t.nc")
+    assert list(back["base_seed"]) == list(table["base_seed"])
+    with xr.open_dataset(tmp_path / "t.nc") as ds:
+        assert ds["base_seed"].attrs["units"] == "1" and "base" in ds["base_seed"].attrs["long_name"]
+    plain = collect_table(rows, tmp_path / "p.nc", tmp_path / "p.csv")
+    assert "base_seed" not in plain.columns
+
+
 def test_collect_writes_a_valid_table_and_lists_excluded_runs(campaign):
     from granflow.campaign.collect import read_excluded
 

@@ -78,6 +78,13 @@ def test_fit_campaign_to_library(tmp_path):
     # measured numbers (granflow.reference.BASE_REALISATION_EFFECT)
     assert ("single brackets move by up to 1.75 deg between bases" in h1.selection
             and "+0.05 ... +0.55 deg" in h1.selection), h1.selection
+    # ... and that the scatter between bases is in them when the table's runs lie on several
+    # (hstop_bisection.replicate_bases: the campaign table's base_seed column)
+    several = table.assign(base_seed=1.0 + np.arange(len(table)) % 3)
+    h1s = next(f for f in fit_campaign(several, n_bootstrap=10)
+               if f.kind == "hstop" and f.coords.get("lam") == 1.0)
+    assert "lie on 3 base realisations (base seeds 1, 2, 3" in h1s.selection, h1s.selection
+    assert "BASE_REALISATION_EFFECT" not in h1s.selection
     # lambda = 2/3 uses a constant alpha; mean of alpha = 1.201 + N(0, 0.02): within 3 SEM
     a23 = by[("alpha", 2.0 / 3.0)]
     assert abs(a23.params["alpha_constant"] - 1.201) < 3 * a23.stderr["alpha_constant"]

@@ -245,6 +245,44 @@ def test_bisection_replicates_per_height(tmp_path):
     assert "bisect/H~3/rep~1/" not in out and "bisect/H~5/rep~1/" not in out
 
 
+def test_replicate_bases_give_each_replicate_chain_a_base_of_its_own(tmp_path):
+    """``hstop_bisection.replicate_bases``: replicate chain k of a height falls onto the base of
+    seed base.seed + k (its own file, made by the base_replicate rule the same way as the
+    campaign's base); chain 0 and every grid run keep the campaign's base; without the key all
+    chains share it.  Combined with replicated grid runs it is refused (the hstop fit would
+    join a grid run and a bracket chain of different bases)."""
+    from granflow.campaign import grid as G
+    from granflow.campaign.config import load_yaml, semantic_errors
+
+    cfg = load_yaml(TINY)
+    bis = cfg["campaigns"]["chute"]["hstop_bisection"]
+    bis.update(replicates=3)
+    rep2 = G.RunPoint("bracket", "linear", 1.0, 24.0, 2.0, replicate=2)
+    grid_run = G.RunPoint("chute", "linear", 1.0, 24.0, 2.0)
+    shared = "bases/lambda~1/box~6x4/base.npy"
+    assert G.base_path(cfg, rep2) == shared and G.base_seed(cfg, rep2) == 1
+    bis.update(replicate_bases=True)
+    assert G.base_path(cfg, rep2) == "bases/lambda~1/box~6x4/seed~3/base.npy"
+    assert G.base_seed(cfg, rep2) == 3
+    assert G.base_path(cfg, G.RunPoint("bracket", "linear", 1.0, 24.0, 2.0)) == shared
+    assert G.base_path(cfg, grid_run) == shared
+    assert semantic_errors(cfg) == []
+    cfg["numerics"]["replicates"] = 2
+    errors = semantic_errors(cfg)
+    assert len(errors) == 1 and "hstop_bisection.replicate_bases = true" in errors[0], errors
+    # the workflow makes that base with the campaign's settings and the replicate's seed
+    overlay = tmp_path / "bases.yaml"
+    overlay.write_text("base: {band: top}\ncampaigns:\n  chute:\n    hstop_bisection:\n"
+                       "      replicates: 3\n      replicate_bases: true\n")
+    target = "results/test-tiny/bases/lambda~1/box~6x4/seed~3/base.npy"
+    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(tmp_path), "-n",
+           "-p", "--configfile", str(TINY), str(overlay), "--", target]
+    proc = _check(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
+    lines = [line for line in proc.stdout.splitlines() if "prepare-base" in line]
+    assert len(lines) == 1 and "--seed 3 " in lines[0] and "--band top" in lines[0], proc.stdout
+    assert "base_replicate" in proc.stdout
+
+
 def test_long_sequential_work_is_scheduled_first(tmp_path):
     """Priorities in the plan of the tiny campaign: segregation runs (slowest sigma first) above
     hstop chain steps above steady runs (thick first) -- longest-processing-time order, so that

@@ -60,6 +60,9 @@ EXTRA_ATTRS = {
     "segregation_state": {"long_name": "segregated state of a bidisperse run (steady, drifting; "
                                        "empty for monodisperse runs)"},
     "replicate": U.cf(U.DIMENSIONLESS, "replicate index k of the run point (insertion seed + k)"),
+    "base_seed": U.cf(U.DIMENSIONLESS, "seed of the rough base the run fell onto (base.seed; + k "
+                                       "for bracket chain k under hstop_bisection."
+                                       "replicate_bases)"),
 }
 
 
@@ -457,6 +460,11 @@ def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation
         for c in EXTRA_COLUMNS:
             table[c] = pd.Series([], dtype=object if c in _STRING_EXTRAS else float)
     table = table[[c for c in cols if c in table.columns]]
+    if config is not None:  # which base each run fell onto (the configuration knows)
+        from .grid import base_seed
+
+        table["base_seed"] = pd.Series([float(base_seed(config, parse_run_path(r)))
+                                        for r in table["run"]], index=table.index, dtype=float)
     Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_csv, table.to_csv(index=False, float_format="%.17g").encode())
     atomic_to_netcdf(table_dataset(table, attrs, config), out_nc)

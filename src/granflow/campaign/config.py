@@ -195,6 +195,18 @@ def semantic_errors(config: dict) -> list[str]:
             if b.get("enabled"):
                 from .hstop import bisection_replicate_errors
                 out += bisection_replicate_errors(b)
+            if b.get("enabled") and b.get("replicate_bases"):
+                from .grid import replicates
+
+                blocks = (c.get("grids") or []) + (c.get("points") or [])
+                n_grid = max([replicates(config, "chute")]
+                             + [int(x.get("replicates", 1)) for x in blocks])
+                if n_grid > 1:
+                    out.append("config key campaigns.chute.hstop_bisection.replicate_bases = true "
+                               f"with chute grid replicates ({n_grid}): a grid run of replicate "
+                               "k lies on the campaign's base, the bracket chain k on base "
+                               "seed + k, and the hstop fit would join them into one bracket; "
+                               "allowed: replicate_bases false, or unreplicated grid runs")
             s = c.get("hstop_search") or {}
             if s.get("enabled") and s.get("theta_min", 5.0) >= s.get("theta_max", 40.0):
                 out.append("config keys campaigns.chute.hstop_search.theta_min/theta_max: "

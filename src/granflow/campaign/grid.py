@@ -15,7 +15,9 @@ k = 1 .. n - 1: the same point with the insertion seed ``seed + k`` (replicate 0
 directory and the configured seed, so a campaign without replicates is unchanged).  Replicates
 share the rough base of their (lambda, box): they measure the scatter of the flow over one
 boundary, the quantity a closure fitted to that base must be given; the base realisation is a
-separate (systematic) question, studied by changing ``base.seed``.  Numbers are
+separate (systematic) question, studied by changing ``base.seed``, or, for the hstop
+bisection chains, by ``hstop_bisection.replicate_bases`` (replicate chain k on a base of seed
+``base.seed + k``).  Numbers are
 written as the shortest string that reads back to the same float, without a trailing ``.0``
 (``24``, ``0.5``, ``0.6666666666666666``).
 
@@ -226,10 +228,26 @@ def base_settings(config: dict) -> dict:
             "band": str(b.get("band", d.band))}
 
 
+def base_seed(config: dict, p: RunPoint) -> int:
+    """Seed of the base a run falls onto: ``base.seed``, plus k for replicate k of an hstop
+    bisection chain when ``hstop_bisection.replicate_bases`` is set (every other run, and
+    replicate 0, shares the campaign's base)."""
+    seed = base_settings(config)["seed"]
+    bis = campaign_cfg(config, "chute").get("hstop_bisection") or {}
+    if p.kind == "bracket" and p.replicate and bis.get("replicate_bases", False):
+        seed += int(p.replicate)
+    return seed
+
+
 def base_path(config: dict, p: RunPoint) -> str:
-    """Rough-base file of a run, relative to the campaign folder: one per (lambda, box)."""
+    """Rough-base file of a run, relative to the campaign folder: one per (lambda, box), and
+    one per further seed of ``hstop_bisection.replicate_bases`` (``/seed~<s>``)."""
     Lx, Ly = box(config, p.kind)
-    return f"bases/lambda~{format_value(p.lam)}/box~{format_value(Lx)}x{format_value(Ly)}/base.npy"
+    folder = f"bases/lambda~{format_value(p.lam)}/box~{format_value(Lx)}x{format_value(Ly)}"
+    seed = base_seed(config, p)
+    if seed != base_settings(config)["seed"]:
+        folder += f"/seed~{seed}"
+    return f"{folder}/base.npy"
 
 
 def parse_base_path(path: str) -> tuple[float, float, float]:

@@ -144,6 +144,9 @@ def config_differences(config: dict) -> list[str]:
                            "from a flowing state (paper §6): thick layers are hysteretic, "
                            "measured at H = 24: arrests 0.25-0.5 deg higher at lambda = 1, "
                            "at least 1.5 deg higher at lambda = 1/2")
+            if bis.get("replicate_bases", False):
+                out.append("hstop replicate chain k falls onto a base of its own (seed base.seed "
+                           "+ k, made the same way), where the paper used one base per lambda")
         elif not hs.get("enabled", False):
             out.append("hstop brackets from a fixed (theta, H) grid instead of the paper's "
                        "adaptive search")

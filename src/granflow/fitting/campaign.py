@@ -178,7 +178,13 @@ def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 20
             if int(no_state.sum()):
                 sel += (f"; {int(no_state.sum())} runs ended by an engine guard before they had "
                         f"a flow state are left out (no evidence either way)")
-            if lam > 0:  # a flat wall (lambda = 0) has no realisation
+            seeds = (sorted({int(v) for v in runs["base_seed"].to_numpy(float)
+                             if math.isfinite(v)}) if "base_seed" in runs.columns else [])
+            if lam > 0 and len(seeds) > 1:
+                sel += (f"; the brackets lie on {len(seeds)} base realisations (base seeds "
+                        f"{', '.join(map(str, seeds))}: hstop_bisection.replicate_bases), so the "
+                        "scatter between bases enters the fit")
+            elif lam > 0:  # a flat wall (lambda = 0) has no realisation
                 from ..reference import base_realisation_note
 
                 sel += "; " + base_realisation_note()
