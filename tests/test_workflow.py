@@ -283,6 +283,28 @@ def test_replicate_bases_give_each_replicate_chain_a_base_of_its_own(tmp_path):
     assert "base_replicate" in proc.stdout
 
 
+def test_job_records_hold_no_path_of_the_venv(tmp_path):
+    """Snakemake reruns a job whose recorded params or command template changed.  The granflow
+    executable's path used to be a param of every rule, so moving the project or recreating its
+    venv elsewhere reran a whole campaign; the records of a finished job now hold no path of
+    the Python that ran it, and a second run has nothing to do."""
+    target = "results/test-tiny/bases/lambda~1/box~6x4/base.npy"
+    cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(tmp_path),
+           "--cores", "1", "--configfile", str(TINY), "--", target]
+    _check(subprocess.run(cmd, capture_output=True, text=True, timeout=600))
+    records = [json.loads(f.read_text())
+               for f in (tmp_path / ".snakemake" / "metadata").iterdir() if f.is_file()]
+    assert records, "no Snakemake job record"
+    venv = str(Path(sys.executable).parent)
+    for rec in records:
+        assert venv not in json.dumps(rec.get("params")), rec.get("params")
+        assert venv not in str(rec.get("code")), rec.get("code")
+        assert str(rec.get("code")).startswith("granflow -v prepare-base")
+    again = _check(subprocess.run(cmd[:-2] + ["-n", "--", target], capture_output=True,
+                                  text=True, timeout=300))
+    assert "Nothing to be done" in again.stdout + again.stderr
+
+
 def test_long_sequential_work_is_scheduled_first(tmp_path):
     """Priorities in the plan of the tiny campaign: segregation runs (slowest sigma first) above
     hstop chain steps above steady runs (thick first) -- longest-processing-time order, so that

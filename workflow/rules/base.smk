@@ -11,7 +11,6 @@ rule base:
     log:
         f"{RESULTS}/logs/base/lambda~{{lam}}_box~{{Lx}}x{{Ly}}.log",
     params:
-        gf=GRANFLOW,
         layers=G.base_settings(config)["layers"],
         settle=G.base_settings(config)["settle_time"],
         seed=G.base_settings(config)["seed"],
@@ -24,7 +23,7 @@ rule base:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
+        "granflow -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
         " --Ly {wildcards.Ly} --seed {params.seed} --base-layers {params.layers}"
         " --settle-time {params.settle} --settle-mu-c {params.mu} --fill-packing {params.fill}"
         " --band {params.band} --out {output} > {log} 2>&1"
@@ -41,7 +40,6 @@ rule base_replicate:
     wildcard_constraints:
         bseed="[0-9]+",
     params:
-        gf=GRANFLOW,
         layers=G.base_settings(config)["layers"],
         settle=G.base_settings(config)["settle_time"],
         mu=G.base_settings(config)["settle_mu_c"],
@@ -53,7 +51,7 @@ rule base_replicate:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
+        "granflow -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
         " --Ly {wildcards.Ly} --seed {wildcards.bseed} --base-layers {params.layers}"
         " --settle-time {params.settle} --settle-mu-c {params.mu} --fill-packing {params.fill}"
         " --band {params.band} --out {output} > {log} 2>&1"
@@ -70,7 +68,6 @@ rule warm_engine:
     log:
         f"{RESULTS}/logs/warm_engine.log",
     params:
-        gf=GRANFLOW,
         cfg=CONFIG_JSON,
     threads: 1
     resources:
@@ -78,5 +75,5 @@ rule warm_engine:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} -v campaign warm-engine --config-json {params.cfg:q} --out {output}"
+        "granflow -v campaign warm-engine --config-json {params.cfg:q} --out {output}"
         " > {log} 2>&1"

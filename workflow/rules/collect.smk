@@ -16,7 +16,6 @@ rule collect:
     log:
         f"{RESULTS}/logs/collect.log",
     params:
-        gf=GRANFLOW,
         campaign=NAME,
         config=CONFIG_JSON,
         rows=lambda wc, input: " ".join(shlex.quote(str(f)) for f in input.get("rows", [])),
@@ -26,6 +25,6 @@ rule collect:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} campaign collect {params.rows} --campaign {params.campaign}"
+        "granflow campaign collect {params.rows} --campaign {params.campaign}"
         " --out-nc {output.nc} --out-csv {output.csv} --excluded {output.excluded}"
         " --segregation {output.segregation} --config-json {params.config:q} > {log} 2>&1"

@@ -16,6 +16,10 @@ from snakemake.settings.types import DeploymentMethod
 # The granflow command line.  Without --use-conda: the `granflow` script of the Python that
 # runs Snakemake (works without an activated venv).  With --use-conda (workflow/envs/
 # granflow.yaml holds the dependencies): the env's python with this checkout's src/ on the path.
+# The rules' shell commands call it as `granflow`, a shell function that the shell prefix
+# defines (below), never through a param: Snakemake records a job's params and its command
+# template and reruns the job when either changes, so a path in them would rerun the whole
+# campaign after the project or its venv moved.
 _GF = Path(sys.executable).with_name("granflow")
 if DeploymentMethod.CONDA in workflow.deployment_settings.deployment_method:
     GRANFLOW = f"env PYTHONPATH={shlex.quote(str(REPO / 'src'))} python -m granflow.cli"
@@ -24,6 +28,13 @@ elif _GF.exists():
 else:
     GRANFLOW = f"{shlex.quote(sys.executable)} -m granflow.cli"
 CONDA_ENV = str(REPO / "workflow" / "envs" / "granflow.yaml")
+# Snakemake's own prefix for bash ("set -euo pipefail; ") kept; the prefix is format()ed, so
+# braces are doubled.  Evaluated again by every job process (also a cluster job's).
+shell.prefix(
+    "set -euo pipefail; granflow() {{ "
+    + GRANFLOW.replace("{", "{{").replace("}", "}}")
+    + ' "$@"; }}; '
+)
 
 NAME = config["name"]
 RESULTS = f"results/{NAME}"

@@ -13,7 +13,6 @@ rule row:
     log:
         f"{RESULTS}/{{kind}}/{{law}}/{{point}}/row.log",
     params:
-        gf=GRANFLOW,
         run_dir=dir_of,
         rel=lambda wc: f"{wc.kind}/{wc.law}/{wc.point}",
         window=SEG_WINDOW,
@@ -23,5 +22,5 @@ rule row:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} campaign row {params.run_dir} --rel {params.rel}"
+        "granflow campaign row {params.run_dir} --rel {params.rel}"
         " --segregation-window {params.window} --out {output} > {log} 2>&1"

@@ -19,7 +19,6 @@ rule fit:
     log:
         f"{RESULTS}/logs/fit.log",
     params:
-        gf=GRANFLOW,
         n_bootstrap=LIBRARY.get("n_bootstrap", 200),
     threads: 1
     resources:
@@ -27,7 +26,7 @@ rule fit:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} campaign fit --table {input.table} --segregation {input.segregation}"
+        "granflow campaign fit --table {input.table} --segregation {input.segregation}"
         " --excluded {input.excluded}"
         " --n-bootstrap {params.n_bootstrap} --out-json {output.json} --out-csv {output.csv}"
         " > {log} 2>&1"

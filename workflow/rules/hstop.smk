@@ -14,7 +14,6 @@ checkpoint hstop_step:
     log:
         f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/step~{{i}}.log",
     params:
-        gf=GRANFLOW,
         args=hstop_step_args,
     # the search is sequential: its next step is placed as soon as its run ends
     priority: 1
@@ -22,7 +21,7 @@ checkpoint hstop_step:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} campaign hstop-step --law {wildcards.law} --lam {wildcards.lam}"
+        "granflow campaign hstop-step --law {wildcards.law} --lam {wildcards.lam}"
         " {params.args} --out {output} > {log} 2>&1"
 
 
@@ -45,7 +44,6 @@ checkpoint hstop_bisect_step:
     log:
         f"{RESULTS}/hstop/{{law}}/lambda~{{lam}}/bisect/H~{{H}}/rep~{{k}}/step~{{i}}.log",
     params:
-        gf=GRANFLOW,
         args=bisect_step_args,
     # a chain's next step is placed as soon as its run ends (the chains are sequential)
     priority: 1
@@ -53,7 +51,7 @@ checkpoint hstop_bisect_step:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} campaign hstop-bisect --law {wildcards.law} --lam {wildcards.lam}"
+        "granflow campaign hstop-bisect --law {wildcards.law} --lam {wildcards.lam}"
         " --H {wildcards.H} --replicate {wildcards.k} {params.args} --out {output} > {log} 2>&1"
 
 

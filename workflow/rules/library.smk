@@ -21,7 +21,6 @@ rule library:
     log:
         f"{RESULTS}/logs/library.log",
     params:
-        gf=GRANFLOW,
         dir=LIBRARY_DIR,
         name=LIBRARY["name"],
         note=(f"--reductions {shlex.quote(LIBRARY['reductions'])}"
@@ -34,7 +33,7 @@ rule library:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} campaign library --fits {input.fits} --table {input.table}"
+        "granflow campaign library --fits {input.fits} --table {input.table}"
         " --excluded {input.excluded}"
         " --dir {params.dir} --name {params.name} {params.note}"
         " --campaign {params.campaign} --config-json {params.config:q}"

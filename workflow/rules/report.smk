@@ -27,7 +27,6 @@ rule report:
     log:
         f"{RESULTS}/logs/report.log",
     params:
-        gf=GRANFLOW,
         results=lambda wc, input: os.path.dirname(input.library),
         campaign=NAME,
         timeout=REPORT_TIMEOUT,
@@ -37,6 +36,6 @@ rule report:
     conda:
         CONDA_ENV
     shell:
-        "{params.gf} campaign report --notebook {input.notebook} --results {params.results}"
+        "granflow campaign report --notebook {input.notebook} --results {params.results}"
         " --campaign {params.campaign} --out-html {output.html} --out-ipynb {output.ipynb}"
         " --figures {output.figures} --timeout {params.timeout} > {log} 2>&1"

@@ -32,7 +32,6 @@ rule simulate:
     log:
         f"{RESULTS}/{{kind}}/{{law}}/{{point}}/simulate.log",
     params:
-        gf=GRANFLOW,
         values=run_params_json,
         out=dir_of,
         restart=restart_args,
@@ -44,7 +43,7 @@ rule simulate:
     conda:
         SIMULATE_CONDA_ENV
     shell:
-        "({params.gf} campaign run-params --json {params.values:q}"
+        "(granflow campaign run-params --json {params.values:q}"
         " --out {params.out}/params.yaml"
-        " && {params.gf} -v simulate {params.out}/params.yaml --base {input.base}"
+        " && granflow -v simulate {params.out}/params.yaml --base {input.base}"
         " --out {params.out} --threads {threads} {params.restart}) > {log} 2>&1"
