@@ -104,6 +104,17 @@ def with_paper_curve(iv: pd.DataFrame, lam: float) -> pd.DataFrame:
     return out
 
 
+def mean_offsets(iv: pd.DataFrame) -> dict:
+    """Mean ``paper_offset`` (bracket midpoint - Table 1's angle, two-sided brackets only) of
+    brackets from :func:`with_paper_curve`: ``{"all": m, realisation: m, ...}`` with the
+    realisation ``replicate // REALISATION_STRIDE`` (0 for a single campaign)."""
+    off = iv[["replicate", "paper_offset"]].dropna()
+    out = {"all": float(off["paper_offset"].mean()) if len(off) else math.nan}
+    for r, g in off.groupby(off["replicate"] // REALISATION_STRIDE):
+        out[int(r)] = float(g["paper_offset"].mean())
+    return out
+
+
 def hstop_tables(runs: pd.DataFrame) -> dict:
     """{(contact law, lambda): (brackets, fit, rows against Table 1)}: one hstop curve per base
     (the brackets of different lambdas or contact laws never mix)."""
@@ -121,8 +132,15 @@ def main():
     runs = bracket_runs(*args.results, realisations=args.realisations)
     for (law, lam), (iv, fit, rows) in hstop_tables(runs).items():
         print(f"\n## contact law {law}, lambda = {lam:g}\n")
-        print(with_paper_curve(iv, lam).sort_values(["H", "replicate"])
+        curve = with_paper_curve(iv, lam)
+        print(curve.sort_values(["H", "replicate"])
               .to_string(index=False, float_format=lambda v: f"{v:.2f}"))
+        offsets = mean_offsets(curve)
+        if math.isfinite(offsets["all"]):
+            per = "".join(f", folder {k}: {v:+.2f}" for k, v in offsets.items()
+                          if k != "all" and args.realisations)
+            print(f"\nmean offset from Table 1's curve (two-sided brackets): "
+                  f"{offsets['all']:+.2f} deg{per}")
         print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
               f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
         _paper_table().print_paper_rows(rows, closure=False)

@@ -245,6 +245,13 @@ def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_pa
     assert own["theta_flowing_min"] == pytest.approx(float(flowing.theta.iloc[0]))
     other = iv3[iv3.replicate == 1000].iloc[0]
     assert other["theta_arrested_max"] == pytest.approx(float(flowing.theta.iloc[0]))
+    # mean offsets from Table 1 per folder: brackets built 0.1 below / 0.15 above a scattered
+    # arrest of Table 1's curve: mean midpoint offset = 0.025 + mean scatter; folder 1 has
+    # only a one-sided bracket, so no offset of its own
+    off = hb.mean_offsets(hb.with_paper_curve(iv3, 1.0))
+    two = hb.with_paper_curve(iv, 1.0)["paper_offset"].dropna()
+    assert off["all"] == pytest.approx(float(two.mean()), abs=1e-12) and set(off) == {"all", 0}
+    assert abs(off[0] - 0.025) < 3 * 0.2 / np.sqrt(len(two))
 
 
 def test_hstop_staircase_carries_each_state_to_the_next_run(tmp_path, monkeypatch):
