@@ -253,6 +253,21 @@ for law in laws:
 display(pd.DataFrame(rows))
 display(Markdown("Shaded: 16–84 % band of the bootstrap ensemble; dotted: extrapolated beyond "
                  "the fitted angles; grey dashed: a closure the data do not identify."))
+# replicate chains on bases of their own (hstop_bisection.replicate_bases): where each base's
+# brackets lie against the fitted curve -- the scatter between base realisations
+from granflow.fitting.hstop import bracket_offsets_by_base
+
+for law in laws:
+    for lam in lams:
+        sub = chute[(chute["contact_law"] == law) & np.isclose(chute["lam"], lam)]
+        r = fit_of("hstop", lam=lam, contact_law=law)
+        if ("base_seed" not in sub or sub["base_seed"].nunique() < 2 or r is None
+                or r.state == "failed"):
+            continue
+        display(Markdown(f"Brackets per base realisation ({law}, λ = {lam:g}): number, mean "
+                         "and spread of (bracket midpoint − fitted Eq. 45 angle at H), deg"))
+        display(bracket_offsets_by_base(sub, r.params["delta1"], r.params["delta2"],
+                                        r.params["A"]))
 
 # %% [markdown]
 # ## Flow rule F(h/hstop) (Fig. 11)

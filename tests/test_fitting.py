@@ -438,3 +438,31 @@ def test_alpha_by_theta_and_profile_continuity():
         i = int(round(z_joint / h * (zeta.size - 1)))
         # one-sided slopes either side of the joint agree to the grid resolution (1e-3 d)
         assert du[i - 3] == pytest.approx(du[i + 3], rel=2e-3)
+
+
+def test_bracket_offsets_by_base_recover_known_base_offsets():
+    """Three bases whose arrests lie +0.5, 0 and -0.3 deg off Table 1's lambda = 1 curve at
+    every height (brackets 0.2 wide, centred on the arrest): the offsets come back per base,
+    exactly, with zero spread; runs of one replicate on two bases are refused."""
+    import pandas as pd
+
+    from granflow.fitting.hstop import bracket_offsets_by_base, theta_stop_eq45
+
+    p = (17.708, 32.780, 3.355)
+    rows = []
+    for rep, (seed, shift) in enumerate(((1, 0.5), (2, 0.0), (3, -0.3))):
+        for H in (2.0, 4.0, 8.0, 16.0):
+            arrest = float(theta_stop_eq45(H, *p)) + shift
+            for theta, state in ((arrest - 0.1, "arrested"), (arrest + 0.1, "steady")):
+                rows.append(dict(theta=theta, H=H, state=state, replicate=float(rep),
+                                 base_seed=float(seed)))
+    runs = pd.DataFrame(rows)
+    out = bracket_offsets_by_base(runs, *p).set_index("base_seed")
+    assert list(out.index) == [1, 2, 3] and list(out["brackets"]) == [4, 4, 4]
+    np.testing.assert_allclose(out["mean_offset"], [0.5, 0.0, -0.3], atol=1e-9)
+    np.testing.assert_allclose(out["std_offset"], 0.0, atol=1e-9)
+    assert bracket_offsets_by_base(runs.drop(columns="base_seed"), *p).empty
+    bad = runs.copy()
+    bad.loc[0, "base_seed"] = 2.0
+    with pytest.raises(ValueError, match="several bases"):
+        bracket_offsets_by_base(bad, *p)

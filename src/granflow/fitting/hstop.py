@@ -184,6 +184,34 @@ def _as_intervals(intervals, runs):
     return H[keep], lo[keep], hi[keep], rep[keep]
 
 
+
+def bracket_offsets_by_base(runs: pd.DataFrame, delta1: float, delta2: float, A: float,
+                            d: float = 1.0) -> pd.DataFrame:
+    """Where each base realisation's brackets lie against an Eq. (45) curve: one row per
+    ``base_seed`` of ``runs`` (campaign-table rows with theta, H, state, replicate, base_seed)
+    with the number of two-sided brackets, their mean and standard deviation of (midpoint -
+    curve angle at H) in degrees.  A base's mean far from the others' is the scatter between
+    base realisations (``hstop_bisection.replicate_bases``) that one base's fit cannot see."""
+    cols = ["base_seed", "brackets", "mean_offset", "std_offset"]
+    if "base_seed" not in runs.columns or not len(runs):
+        return pd.DataFrame(columns=cols)
+    seeds = runs.groupby(runs["replicate"].fillna(0).astype(int))["base_seed"].agg(
+        lambda v: sorted(set(v.dropna().astype(int))))
+    mixed = {int(k): v for k, v in seeds.items() if len(v) > 1}
+    if mixed:
+        raise ValueError(f"replicates {sorted(mixed)} hold runs of several bases {mixed}: a "
+                         "bracket must lie on one base")
+    iv = hstop_intervals_from_runs(runs)
+    two = np.isfinite(iv["theta_arrested_max"]) & np.isfinite(iv["theta_flowing_min"])
+    iv = iv[two]
+    mid = 0.5 * (iv["theta_arrested_max"] + iv["theta_flowing_min"])
+    off = mid - theta_stop_eq45(iv["H"].to_numpy(float), delta1, delta2, A, d)
+    base = iv["replicate"].map(lambda k: seeds.get(int(k), [np.nan])[0])
+    rows = [{"base_seed": int(b), "brackets": int(len(g)), "mean_offset": float(g.mean()),
+             "std_offset": float(g.std(ddof=1)) if len(g) > 1 else math.nan}
+            for b, g in off.groupby(base.to_numpy())]
+    return pd.DataFrame(rows, columns=cols)
+
 # ---------------------------------------------------------------------------- fitting
 def horizontal_distance(theta_curve, lo, hi):
     """Distance (degrees) from curve angles to intervals [lo, hi]; zero inside the interval."""
