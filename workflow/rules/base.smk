@@ -3,6 +3,18 @@
 # (Weinhart et al. 2012 §5: settle a layer of diameter-lambda particles, keep a band, freeze it).
 
 
+_BASE = G.base_settings(config)
+# how every base of the campaign is made (the campaign's base and those of replicate_bases)
+BASE_MAKING = dict(layers=_BASE["layers"], settle=_BASE["settle_time"], mu=_BASE["settle_mu_c"],
+                   fill=_BASE["fill_packing"], band=_BASE["band"])
+PREPARE_BASE = (
+    "granflow -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
+    " --Ly {wildcards.Ly} --seed {params.seed} --base-layers {params.layers}"
+    " --settle-time {params.settle} --settle-mu-c {params.mu} --fill-packing {params.fill}"
+    " --band {params.band} --out {output} > {log} 2>&1"
+)
+
+
 rule base:
     # first, beside the compile-warm job (both cores busy from the start)
     priority: 100
@@ -11,22 +23,15 @@ rule base:
     log:
         f"{RESULTS}/logs/base/lambda~{{lam}}_box~{{Lx}}x{{Ly}}.log",
     params:
-        layers=G.base_settings(config)["layers"],
-        settle=G.base_settings(config)["settle_time"],
-        seed=G.base_settings(config)["seed"],
-        mu=G.base_settings(config)["settle_mu_c"],
-        fill=G.base_settings(config)["fill_packing"],
-        band=G.base_settings(config)["band"],
+        seed=_BASE["seed"],
+        **BASE_MAKING,
     threads: 1
     resources:
         **cluster_resources("base"),
     conda:
         CONDA_ENV
     shell:
-        "granflow -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
-        " --Ly {wildcards.Ly} --seed {params.seed} --base-layers {params.layers}"
-        " --settle-time {params.settle} --settle-mu-c {params.mu} --fill-packing {params.fill}"
-        " --band {params.band} --out {output} > {log} 2>&1"
+        PREPARE_BASE
 
 
 # Further bases of hstop_bisection.replicate_bases: replicate chain k of a height falls onto a
@@ -40,21 +45,15 @@ rule base_replicate:
     wildcard_constraints:
         bseed="[0-9]+",
     params:
-        layers=G.base_settings(config)["layers"],
-        settle=G.base_settings(config)["settle_time"],
-        mu=G.base_settings(config)["settle_mu_c"],
-        fill=G.base_settings(config)["fill_packing"],
-        band=G.base_settings(config)["band"],
+        seed=lambda wildcards: int(wildcards.bseed),
+        **BASE_MAKING,
     threads: 1
     resources:
         **cluster_resources("base"),
     conda:
         CONDA_ENV
     shell:
-        "granflow -v prepare-base --lam {wildcards.lam} --Lx {wildcards.Lx}"
-        " --Ly {wildcards.Ly} --seed {wildcards.bseed} --base-layers {params.layers}"
-        " --settle-time {params.settle} --settle-mu-c {params.mu} --fill-packing {params.fill}"
-        " --band {params.band} --out {output} > {log} 2>&1"
+        PREPARE_BASE
 
 
 # Compile-warm: tiny runs of each (kind, contact law) of the campaign, beside the base job, so
