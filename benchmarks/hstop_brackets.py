@@ -10,7 +10,10 @@ results folders override earlier ones run by run (a chain rerun elsewhere replac
 original's runs at the same angle and height), unless ``--realisations``: then each folder is
 a campaign over another base realisation (its own ``base.seed`` or making), whose chains are
 data of their own (replicate ``1000 i + k`` for insertion replicate k of folder i), so that the
-fit's scatter and stderrs include the scatter between bases.
+fit's scatter and stderrs include the scatter between bases.  Every bracket is labelled with the
+base it lies on (a fingerprint of the fixed particles' positions in the run's
+``final_state.npz``: the same base in two folders is one base), and the fit models an offset
+common to one base's brackets as a random effect (``granflow.fitting.hstop.base_scatter``).
 
     .venv/bin/python benchmarks/hstop_brackets.py results/reference-lambda1
     .venv/bin/python benchmarks/hstop_brackets.py --realisations results/base1 results/base2
@@ -19,12 +22,14 @@ fit's scatter and stderrs include the scatter between bases.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import json
 import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from granflow.campaign.collect import engine_stop_without_flow_state
@@ -39,6 +44,18 @@ POINT = re.compile(r"(?P<law>[A-Za-z_]+)/lambda~(?P<lam>[0-9.]+)/theta~(?P<theta
 #: replicate index offset per results folder under ``--realisations`` (insertion replicates
 #: of one campaign stay below it)
 REALISATION_STRIDE = 1000
+
+
+def base_fingerprint(state_file) -> str | None:
+    """First 12 hex digits of the SHA-256 of the fixed (base) particles' positions in a run's
+    final state: equal for every run on one base file, whatever the run's angle, height or
+    insertion seed (None: no final state)."""
+    state_file = Path(state_file)
+    if not state_file.is_file():
+        return None
+    with np.load(state_file, allow_pickle=False) as data:
+        pos = np.ascontiguousarray(data["pos"][data["fixed"].astype(bool)], dtype=np.float64)
+    return hashlib.sha256(pos.tobytes()).hexdigest()[:12]
 
 
 def bracket_runs(*roots, realisations: bool = False) -> pd.DataFrame:
@@ -64,10 +81,11 @@ def bracket_runs(*roots, realisations: bool = False) -> pd.DataFrame:
                     "theta": float(m["theta"]), "H": float(m["H"]), "state": summ["flow_state"],
                     "replicate": rep + (REALISATION_STRIDE * i if realisations else 0),
                     "realisation": i if realisations else 0, "lambda": float(m["lam"]),
-                    "contact_law": m["law"], "stop_reason": stop}
+                    "contact_law": m["law"], "stop_reason": stop,
+                    "base": base_fingerprint(f.with_name("final_state.npz"))}
     return pd.DataFrame(list(runs.values()),
                         columns=["theta", "H", "state", "replicate", "realisation", "lambda",
-                                 "contact_law", "stop_reason"])
+                                 "contact_law", "stop_reason", "base"])
 
 
 def _paper_table():
@@ -143,6 +161,14 @@ def main():
                   f"{offsets['all']:+.2f} deg{per}")
         print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
               f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
+        sc = fit.extra.get("base_scatter")
+        if sc:
+            print(f"bases: {sc['n_bases']} (brackets {sc['brackets_per_base']}, mean offsets "
+                  f"from the fit {', '.join(f'{v:+.2f}' for v in sc['mean_offsets'])} deg); "
+                  f"between-base sigma_b {sc['sigma_between']:.2f} deg, within a base "
+                  f"{sc['sigma_within']:.2f} ("
+                  + ("drawn per base in the bootstrap)" if sc["sigma_between"] > 0 else
+                     "not resolved above the scatter within a base)"))
         _paper_table().print_paper_rows(rows, closure=False)
 
 

@@ -254,6 +254,49 @@ def test_hstop_brackets_fits_replicate_brackets_and_lets_a_rerun_override(tmp_pa
     assert abs(off[0] - 0.025) < 3 * 0.2 / np.sqrt(len(two))
 
 
+def test_hstop_brackets_labels_each_bracket_with_its_base_and_models_a_common_offset(tmp_path):
+    """Brackets on two bases (the fixed particles of each run's final_state.npz), whose arrests
+    lie 0.5 deg above / below Table 1's lambda = 1 curve: the base label is the same for every
+    run on one base, whatever its angle and height and in whichever folder; the fit reports two
+    bases with mean offsets +-0.5 deg from its curve and a between-base sigma_b."""
+    import json
+
+    import numpy as np
+
+    from granflow.fitting.hstop import theta_stop_eq45
+
+    hb = _load("hstop_brackets")
+    rng = np.random.default_rng(1)
+    bases = [rng.uniform(0, 5, (30, 3)) for _ in range(2)]
+
+    def write(root, theta, H, k, state, base):
+        d = root / "bracket" / "linear" / "lambda~1" / f"theta~{theta:.2f}" / f"H~{H:g}"
+        d = d / f"seed~{k}" if k else d
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "summary.json").write_text(json.dumps({"flow_state": state}))
+        flow = rng.uniform(0, 5, (5, 3))  # the flow particles differ run by run
+        np.savez(d / "final_state.npz", pos=np.vstack([bases[base], flow]),
+                 fixed=np.r_[np.ones(30, bool), np.zeros(5, bool)])
+
+    root, other = tmp_path / "a", tmp_path / "b"
+    for H in (1.5, 2.0, 3.0, 4.0, 6.0, 12.0, 24.0):
+        for k, shift in ((0, 0.5), (1, -0.5)):
+            arrest = float(theta_stop_eq45(H, 17.708, 32.780, 3.355)) + shift
+            write(root, arrest - 0.1, H, k, "arrested", base=k)
+            write(root, arrest + 0.1, H, k, "steady", base=k)
+    write(other, 30.0, 1.5, 0, "steady", base=0)
+    runs = hb.bracket_runs(root, other, realisations=True)
+    labels = runs.groupby("replicate")["base"].agg(set)
+    assert len(labels[0]) == 1 and len(labels[1]) == 1 and labels[0] != labels[1]
+    assert labels[1000] == labels[0]  # the same base in another folder is the same base
+    assert hb.base_fingerprint(tmp_path / "missing.npz") is None
+    iv, fit, _ = hb.hstop_table(runs[runs.realisation == 0])
+    sc = fit.extra["base_scatter"]
+    assert sc["n_bases"] == 2 and sc["brackets_per_base"] == [7, 7]
+    np.testing.assert_allclose(sorted(sc["mean_offsets"]), [-0.5, 0.5], atol=0.05)
+    assert sc["sigma_between"] > 0.5 and "sigma_b" in fit.message
+
+
 def test_hstop_staircase_carries_each_state_to_the_next_run(tmp_path, monkeypatch):
     """benchmarks/hstop_staircase.py (the paper's §6 walk with carried-over state), with the
     simulation replaced by a known hstop curve: flowing iff H >= 4 + 4 (21 - theta) / 0.5.

@@ -440,6 +440,64 @@ def test_alpha_by_theta_and_profile_continuity():
         assert du[i - 3] == pytest.approx(du[i + 3], rel=2e-3)
 
 
+def test_base_scatter_is_unbiased_on_series_with_a_known_between_base_variance():
+    """One-way random effects (offset = b_j + e_ij, b ~ N(0, 0.4^2), e ~ N(0, 0.2^2)): the
+    method-of-moments sigma_b^2 averages to the true 0.16 over 2000 synthetic campaigns of 6
+    bases x 5 brackets within 4 % (its standard error there ~1.5 %), also with unequal
+    groups; one base, or one bracket per base, gives None (nothing to separate)."""
+    from granflow.fitting.hstop import base_scatter
+
+    rng = np.random.default_rng(0)
+    for sizes in ((5,) * 6, (2, 9, 4, 7, 3, 5)):
+        labels = np.repeat(np.arange(len(sizes)), sizes)
+        est = [base_scatter(np.repeat(rng.normal(0, 0.4, len(sizes)), sizes)
+                            + rng.normal(0, 0.2, labels.size), labels)["sigma_between"] ** 2
+               for _ in range(2000)]
+        assert abs(np.mean(est) / 0.16 - 1) < 0.04, (sizes, np.mean(est))
+    assert base_scatter([0.1, 0.2, 0.3], [0, 0, 0]) is None
+    assert base_scatter([0.1, 0.2, 0.3], [0, 1, 2]) is None
+    # unknown bases (-1) and one-sided brackets (NaN) are left out
+    out = base_scatter([0.5, 0.7, -0.5, -0.3, 9.0, np.nan], [0, 0, 1, 1, -1, 0])
+    assert out["n_brackets"] == 4 and out["brackets_per_base"] == [2, 2]
+    np.testing.assert_allclose(out["mean_offsets"], [0.6, -0.4])
+
+
+def test_hstop_stderr_includes_an_offset_common_to_one_bases_brackets():
+    """Brackets of three bases whose arrests lie +0.5, 0 and -0.5 deg off Table 1's lambda = 1
+    curve at all nine heights (0.1 deg noise per arrest): with the base labels the fit reports
+    the between-base sigma_b (0.5 here, the offsets' sample deviation, within 0.1) and its
+    delta1/delta2 stderrs grow to sqrt(stderr_iid^2 + sigma_b^2 / 3) within 25 % (three bases'
+    mean offset); the parameters are those of the fit without labels.  All brackets on one
+    base: the same numbers as without labels, bit for bit."""
+    import pandas as pd
+
+    from granflow.fitting.hstop import fit_hstop, theta_stop_eq45
+
+    p = (17.708, 32.780, 3.355)
+    rng = np.random.default_rng(3)
+    rows = []
+    for rep, (seed, shift) in enumerate(((1, 0.5), (2, 0.0), (3, -0.5))):
+        for H in (1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0):
+            arrest = float(theta_stop_eq45(H, *p)) + shift + rng.normal(0, 0.1)
+            for theta, state in ((arrest - 0.1, "arrested"), (arrest + 0.1, "steady")):
+                rows.append(dict(theta=theta, H=H, state=state, replicate=float(rep),
+                                 base_seed=float(seed)))
+    runs = pd.DataFrame(rows)
+    with_bases = fit_hstop(runs=runs, n_bootstrap=200, seed=1)
+    iid = fit_hstop(runs=runs.drop(columns="base_seed"), n_bootstrap=200, seed=1)
+    sc = with_bases.extra["base_scatter"]
+    assert sc["n_bases"] == 3 and abs(sc["sigma_between"] - 0.5) < 0.1, sc
+    assert "sigma_b = " in with_bases.message and iid.extra["base_scatter"] is None
+    assert with_bases.params == iid.params
+    for k in ("delta1", "delta2"):
+        expect = np.hypot(iid.stderr[k], sc["sigma_between"] / np.sqrt(3))
+        assert with_bases.stderr[k] > iid.stderr[k], k
+        assert abs(with_bases.stderr[k] / expect - 1) < 0.25, (k, with_bases.stderr[k], expect)
+    one = fit_hstop(runs=runs.assign(base_seed=1.0), n_bootstrap=200, seed=1)
+    assert one.stderr == iid.stderr and one.params == iid.params
+    assert one.extra["base_scatter"] is None
+
+
 def test_bracket_offsets_by_base_recover_known_base_offsets():
     """Three bases whose arrests lie +0.5, 0 and -0.3 deg off Table 1's lambda = 1 curve at
     every height (brackets 0.2 wide, centred on the arrest): the offsets come back per base,

@@ -80,11 +80,25 @@ def test_fit_campaign_to_library(tmp_path):
             and "+0.05 ... +0.55 deg" in h1.selection), h1.selection
     # ... and that the scatter between bases is in them when the table's runs lie on several
     # (hstop_bisection.replicate_bases: the campaign table's base_seed column)
-    several = table.assign(base_seed=1.0 + np.arange(len(table)) % 3)
+    # (one base per height here: a bracket's runs must lie on one base)
+    several = table.assign(base_seed=1.0 + table["H"].rank(method="dense").astype(int) % 3)
     h1s = next(f for f in fit_campaign(several, n_bootstrap=10)
                if f.kind == "hstop" and f.coords.get("lam") == 1.0)
     assert "lie on 3 base realisations (base seeds 1, 2, 3" in h1s.selection, h1s.selection
-    assert "BASE_REALISATION_EFFECT" not in h1s.selection
+    assert "random effect" in h1s.selection and "BASE_REALISATION_EFFECT" not in h1s.selection
+    assert h1s.status != "failed" and h1s.extra["base_scatter"]["n_bases"] == 3
+    # the library stores sigma_b beside the parameters (NaN where all brackets lie on one base)
+    lib_s = gc.open_library(gc.write_library(tmp_path, "several", [h1s], several,
+                                             reductions="synthetic"))
+    var = lib_s["hstop_base_sigma_between"]
+    assert var.attrs["units"] == "degree" and "random effect" in var.attrs["long_name"]
+    assert float(var.sel(contact_law="linear", **{"lambda": 1.0})) == pytest.approx(
+        h1s.extra["base_sigma_between"])
+    # runs of one bracket on two bases are refused, by name
+    mixed = table.assign(base_seed=1.0 + np.arange(len(table)) % 3)
+    h1m = next(f for f in fit_campaign(mixed, n_bootstrap=10)
+               if f.kind == "hstop" and f.coords.get("lam") == 1.0)
+    assert h1m.status == "failed" and "lie on several bases" in h1m.message, h1m.message
     # lambda = 2/3 uses a constant alpha; mean of alpha = 1.201 + N(0, 0.02): within 3 SEM
     a23 = by[("alpha", 2.0 / 3.0)]
     assert abs(a23.params["alpha_constant"] - 1.201) < 3 * a23.stderr["alpha_constant"]

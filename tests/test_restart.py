@@ -298,3 +298,28 @@ def test_killed_top_up_run_resumes_to_identical_numbers(parent, tmp_path):
     sb = json.loads((killed / "summary.json").read_text())
     assert sb["parent"]["topped_up"] == sa["parent"]["topped_up"] == 48
     assert sb["t_final"] == sa["t_final"]
+
+
+def test_outputs_name_the_base_a_run_fell_onto_and_a_restart_inherits_it(tmp_path):
+    """summary.json's provenance and the netCDF attributes carry the SHA-256 of the base file
+    (so that brackets can be grouped by base realisation without the campaign's config); a
+    restart names its parent's base; a base prepared from the parameters records None."""
+    import hashlib
+
+    from granflow.simulate import prepare_base_file
+
+    base = tmp_path / "base.npy"
+    prepare_base_file(1.0, 6.0, 4.0, 3, base, base_layers=4.0, settle_time=5.0)
+    sha = hashlib.sha256(base.read_bytes()).hexdigest()
+    simulate(dict(BASE, theta=26.0, t_end=1.0), tmp_path / "on_file", base_file=base)
+    summary = json.loads((tmp_path / "on_file" / "summary.json").read_text())
+    assert summary["provenance"]["base_sha256"] == sha
+    assert xr.open_dataset(tmp_path / "on_file" / "profiles.nc").attrs["base_sha256"] == sha
+    simulate(dict(BASE, theta=28.0, t_end=0.5), tmp_path / "child",
+             from_state=tmp_path / "on_file" / "final_state.npz")
+    child = json.loads((tmp_path / "child" / "summary.json").read_text())
+    assert child["provenance"]["base_sha256"] == sha
+    assert child["parent"]["parent_base_sha256"] == sha
+    simulate(dict(BASE, theta=26.0, t_end=0.5), tmp_path / "own_base")
+    own = json.loads((tmp_path / "own_base" / "summary.json").read_text())
+    assert own["provenance"]["base_sha256"] is None

@@ -602,7 +602,8 @@ def restart_state(state_file, cfg: ChuteConfig, top_up: bool = False):
         parent.update(parent_theta=ps.get("params", {}).get("theta"),
                       parent_flow_state=ps.get("flow_state"),
                       parent_git_commit=ps.get("provenance", {}).get("git_commit"),
-                      parent_config_hash=ps.get("provenance", {}).get("config_hash"))
+                      parent_config_hash=ps.get("provenance", {}).get("config_hash"),
+                      parent_base_sha256=ps.get("provenance", {}).get("base_sha256"))
     return system, {k: v for k, v in parent.items() if v is not None}
 
 
@@ -776,8 +777,11 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         finally:
             lammps.close()
         extra_attrs = lammps_attrs(lammps)
+    # the base the run stands on: its file's, or for a restart its parent's (None: prepared
+    # from the parameters, or a parent run that did not record it)
+    base_sha256 = identity["base_sha256"] or (parent or {}).get("parent_base_sha256")
     out = write_outputs(p, out_dir, run, monitor_obs, profile_obs, seg_obs, extra_attrs,
-                        parent=parent, engine_stop=engine_stop)
+                        parent=parent, engine_stop=engine_stop, base_sha256=base_sha256)
     if ckpt.exists():
         ckpt.unlink()
     # wall_s: this process; cost: the whole run (all segments of a resumed run, CPU of all threads)
@@ -860,14 +864,17 @@ def lammps_attrs(lammps) -> dict:
 
 
 def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
-                  extra_attrs=None, parent=None, engine_stop: str | None = None) -> dict:
+                  extra_attrs=None, parent=None, engine_stop: str | None = None,
+                  base_sha256: str | None = None) -> dict:
     """Classify the run and write series.nc, profiles.nc, final_state.npz and summary.json.
 
     ``run`` offers ``system`` (``time``, ``fixed``, ``dt``, ``save(path)``; ``save`` may be
     None: no final state), ``stop_reason`` and ``series.arrays()``; the observers are the
     run's (any engine, or an ingest of dumps); ``parent``: the restart provenance of
     :func:`restart_state`; ``engine_stop``: the message of an engine guard that ended the run
-    (the flow state is then ``undecided``).  Returns the summary (plus ``profiles``).
+    (the flow state is then ``undecided``); ``base_sha256``: SHA-256 of the base file the run
+    fell onto, recorded in the provenance (attribute and ``summary["provenance"]``) so that runs
+    can be grouped by base realisation.  Returns the summary (plus ``profiles``).
     """
     import json
 
@@ -902,6 +909,8 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
                  state_confidence=final["confidence"], classification=final["explanation"],
                  classification_statistics=final["statistics_json"], profile_time_from=t_from,
                  steady_min_onset=monitor_obs.monitor.min_onset)
+    if base_sha256:
+        attrs["base_sha256"] = base_sha256
     attrs.update(extra_attrs or {})
     if engine_stop is not None:
         attrs["engine_stop"] = engine_stop
@@ -942,6 +951,7 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
             k: v for k, v in seg.items() if k not in ("time", "value")},
         "provenance": {k: attrs[k] for k in ("granflow_version", "git_commit", "config_hash")},
     }
+    summary["provenance"]["base_sha256"] = base_sha256 or None
     if parent:
         summary["parent"] = dict(parent)
     if engine_stop is not None:

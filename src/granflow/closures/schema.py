@@ -66,15 +66,21 @@ _FLOW_RULE_PARAMS = {
     "gamma": (U.DIMENSIONLESS, "flow-rule offset gamma"),
 }
 
+#: the random effect of :func:`granflow.fitting.hstop.base_scatter` (brackets on several bases)
+_BASE_SIGMA = (U.ANGLE, "standard deviation of an hstop offset common to one base realisation's "
+                        "brackets (random effect in the bootstrap; NaN: all brackets on one base)")
+
 KINDS = {
     "hstop": KindSpec(
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (45)", _HSTOP_PARAMS, U.ANGLE,
         {**_ANGLE_RANGE, "h": (U.LENGTH, "height H")},
-        {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval")}),
+        {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval"),
+         "base_sigma_between": _BASE_SIGMA}),
     "hstop_eq38": KindSpec(
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (38)", _HSTOP_PARAMS, U.ANGLE,
         {**_ANGLE_RANGE, "h": (U.LENGTH, "height H")},
-        {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval")}),
+        {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval"),
+         "base_sigma_between": _BASE_SIGMA}),
     "flow_rule": KindSpec(
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (47)", _FLOW_RULE_PARAMS,
         U.DIMENSIONLESS,

@@ -183,9 +183,10 @@ def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 20
             if lam > 0 and len(seeds) > 1:
                 sel += (f"; the brackets lie on {len(seeds)} base realisations (base seeds "
                         f"{', '.join(map(str, seeds))}: hstop_bisection.replicate_bases), so the "
-                        "scatter between bases enters the fit's residuals (brackets are "
-                        "resampled one by one: an offset common to one base's brackets is not "
-                        "modelled)")
+                        "scatter between bases enters the fit's residuals, and an offset common "
+                        "to one base's brackets enters its stderrs as a random effect (each "
+                        "bootstrap refit shifts each base's brackets by a draw of it; "
+                        "extra base_scatter)")
             elif lam > 0:  # a flat wall (lambda = 0) has no realisation
                 from ..reference import base_realisation_note
 

@@ -25,7 +25,11 @@ intervals among those; ``tie_break=0`` gives the paper's objective alone.
 Uncertainties are from a bootstrap over intervals (``stderr_method="bootstrap"``): the intervals
 are resampled with replacement ``n_bootstrap`` times and refitted; stderr is half the central
 68 % range of the refitted parameters (robust to the few resamples that drop the thinnest
-brackets, on which delta2 rests), and the refits are kept as the closure's ensemble. The error measure is Eq. (49) of the horizontal distances
+brackets, on which delta2 rests), and the refits are kept as the closure's ensemble.  Brackets
+on several base realisations (a ``base`` label per interval, e.g. a campaign's ``base_seed``) are
+not independent when one base lifts all of its brackets: the offset common to a base is
+estimated as a random effect (:func:`base_scatter`) and each refit shifts each base's brackets by
+a draw of it. The error measure is Eq. (49) of the horizontal distances
 (degrees). The paper fitted Eq. (38) by the vertical distance; here both forms use the horizontal
 distance so that their errors compare like with like.
 """
@@ -131,7 +135,13 @@ def hstop_intervals_from_runs(theta, H=None, state=None, replicate=None) -> pd.D
     and its bootstrap, and their scatter enters the fit's error, instead of one interval widened
     by the seed scatter (pooling the seeds' runs inverts the bracket as soon as one seed arrests
     above another's flowing angle).  Runs without a replicate index count as replicate 0.
+
+    A frame with a ``base`` or ``base_seed`` column (the base realisation a run fell onto: a
+    campaign table's ``base_seed``, or any label) gives each interval the ``base`` of its runs,
+    which the fit uses to model an offset common to one base's brackets
+    (:func:`base_scatter`); an (H, replicate) whose runs lie on several bases is an error.
     """
+    base = None
     if isinstance(theta, pd.DataFrame):
         frame = theta
         if "stop_reason" in frame.columns:
@@ -139,6 +149,9 @@ def hstop_intervals_from_runs(theta, H=None, state=None, replicate=None) -> pd.D
         theta, H, state = frame["theta"].to_numpy(float), frame["H"].to_numpy(float), frame["state"].to_numpy()
         if "replicate" in frame.columns:
             replicate = frame["replicate"].to_numpy(float)
+        col = next((c for c in ("base", "base_seed") if c in frame.columns), None)
+        if col is not None:
+            base = frame[col].to_numpy(object)
     theta = np.asarray(theta, dtype=float)
     H = np.asarray(H, dtype=float)
     state = np.asarray(state).astype(str)
@@ -158,9 +171,22 @@ def hstop_intervals_from_runs(theta, H=None, state=None, replicate=None) -> pd.D
             inverted = lo > hi
             if inverted:
                 lo, hi = hi, lo
-            rows.append({"H": float(h), "theta_arrested_max": lo, "theta_flowing_min": hi,
-                         "inverted": bool(inverted), "replicate": int(k)})
-    return pd.DataFrame(rows, columns=list(INTERVAL_COLUMNS) + ["inverted", "replicate"])
+            row = {"H": float(h), "theta_arrested_max": lo, "theta_flowing_min": hi,
+                   "inverted": bool(inverted), "replicate": int(k)}
+            if base is not None:
+                labels = {b for b in base[sel] if not _missing(b)}
+                if len(labels) > 1:
+                    raise ValueError(f"the runs at H = {h:g}, replicate {int(k)} lie on several "
+                                     f"bases {sorted(map(str, labels))}: a bracket must lie on "
+                                     "one base")
+                row["base"] = labels.pop() if labels else None
+            rows.append(row)
+    extra = ["inverted", "replicate"] + (["base"] if base is not None else [])
+    return pd.DataFrame(rows, columns=list(INTERVAL_COLUMNS) + extra)
+
+
+def _missing(label) -> bool:
+    return label is None or (isinstance(label, float) and math.isnan(label))
 
 
 def _as_intervals(intervals, runs):
@@ -178,10 +204,49 @@ def _as_intervals(intervals, runs):
     hi = intervals["theta_flowing_min"].to_numpy(float)
     rep = (intervals["replicate"].fillna(0).to_numpy(int) if "replicate" in intervals.columns
            else np.zeros(H.shape, int))
+    # base realisation of each interval as a code 0, 1, ... (-1: not known)
+    base = np.full(H.shape, -1, int)
+    if "base" in intervals.columns:
+        labels = [None if _missing(b) else str(b) for b in intervals["base"]]
+        known = sorted({b for b in labels if b is not None})
+        base = np.array([-1 if b is None else known.index(b) for b in labels], int)
     keep = np.isfinite(H) & (H > 0) & ~(np.isnan(lo) & np.isnan(hi))
     lo = np.where(np.isnan(lo), -np.inf, lo)
     hi = np.where(np.isnan(hi), np.inf, hi)
-    return H[keep], lo[keep], hi[keep], rep[keep]
+    return H[keep], lo[keep], hi[keep], rep[keep], base[keep]
+
+
+def base_scatter(offsets, base) -> dict | None:
+    """Standard deviation of an offset common to one base realisation's brackets.
+
+    ``offsets``: bracket midpoint minus the fitted curve's angle (degrees, two-sided brackets);
+    ``base``: each bracket's base code (-1: unknown, left out).  One-way random-effects model
+    offset_ij = b_j + e_ij with the method-of-moments (ANOVA) estimate for unequal group sizes,
+    sigma_b^2 = max(0, (MSB - MSW) / n0), n0 = (N - sum n_j^2 / N) / (J - 1).  Needs J >= 2
+    bases and N > J brackets; returns None otherwise.  The fit's bootstrap then shifts each base's
+    brackets by its own draw of N(0, sigma_b^2): replicate chains on other bases
+    (``hstop_bisection.replicate_bases``) are not independent data when one base lifts all of its
+    brackets, and resampling brackets one by one would not see it."""
+    offsets = np.asarray(offsets, dtype=float)
+    base = np.asarray(base, dtype=int)
+    ok = (base >= 0) & np.isfinite(offsets)
+    offsets, base = offsets[ok], base[ok]
+    codes = np.unique(base)
+    J, N = len(codes), len(offsets)
+    if J < 2 or N <= J:
+        return None
+    n = np.array([np.sum(base == c) for c in codes], float)
+    means = np.array([offsets[base == c].mean() for c in codes])
+    grand = offsets.mean()
+    msb = float(np.sum(n * (means - grand) ** 2) / (J - 1))
+    msw = float(sum(np.sum((offsets[base == c] - m) ** 2) for c, m in zip(codes, means)) / (N - J))
+    n0 = float((N - np.sum(n ** 2) / N) / (J - 1))
+    var_b = max(0.0, (msb - msw) / n0)
+    return {"n_bases": int(J), "n_brackets": int(N), "sigma_between": math.sqrt(var_b),
+            "sigma_within": math.sqrt(msw), "mean_offsets": [float(m) for m in means],
+            "brackets_per_base": [int(k) for k in n],
+            "method": "one-way random effects, ANOVA (method of moments) estimate, unequal "
+                      "group sizes; offsets of two-sided bracket midpoints from the fitted curve"}
 
 
 
@@ -316,7 +381,7 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
     equation, kind, theta_stop = _FORMS[form]
     coords = dict(lam=lam, contact_law=contact_law)
     try:
-        H, lo, hi, rep = _as_intervals(intervals, runs)
+        H, lo, hi, rep, base = _as_intervals(intervals, runs)
     except ValueError as exc:
         return failed_fit(kind, equation, HSTOP_PARAMS, str(exc), 0, "bootstrap", **coords)
     two_sided = np.isfinite(lo) & np.isfinite(hi)
@@ -333,15 +398,22 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
     params = {"delta1": float(delta1), "delta2": float(delta1 + width), "A": float(A)}
     th = theta_stop(H, params["delta1"], params["delta2"], params["A"], d)
     dist = horizontal_distance(th, lo, hi)
+    scatter = base_scatter(np.where(two_sided, 0.5 * (lo + hi) - th, np.nan), base)
+    sigma_b = scatter["sigma_between"] if scatter else 0.0
 
     rng = np.random.default_rng(seed)
     boot = []
     n = len(H)
+    n_codes = int(base.max()) + 1 if len(base) else 0
     for _ in range(int(n_bootstrap)):
         idx = rng.integers(0, n, n)
         if int(two_sided[idx].sum()) < min_intervals:
             continue
-        sol = _solve(H[idx], lo[idx], hi[idx], tie_break, theta_stop, d, [best.x])
+        lo_b, hi_b = lo[idx], hi[idx]
+        if sigma_b > 0:  # an offset common to each base's brackets, drawn anew per refit
+            shift = np.append(rng.normal(0.0, sigma_b, n_codes), 0.0)[base[idx]]
+            lo_b, hi_b = lo_b + shift, hi_b + shift
+        sol = _solve(H[idx], lo_b, hi_b, tie_break, theta_stop, d, [best.x])
         if sol is not None and sol.success:
             boot.append([sol.x[0], sol.x[0] + sol.x[1], sol.x[2]])
     boot = np.asarray(boot).reshape(-1, 3)
@@ -351,6 +423,12 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
     else:
         stderr = {k: math.nan for k in HSTOP_PARAMS}
         boot_msg = f"bootstrap failed ({len(boot)} usable refits); stderr NaN"
+    if scatter:
+        boot_msg += (f"; brackets on {scatter['n_bases']} base realisations: an offset common to "
+                     f"one base's brackets, sigma_b = {sigma_b:.2f} deg (random effects; within "
+                     f"a base {scatter['sigma_within']:.2f}), "
+                     + ("is drawn per base in every refit" if sigma_b > 0 else
+                        "is not resolved above the scatter within a base"))
     finite = np.concatenate([lo[np.isfinite(lo)], hi[np.isfinite(hi)]])
     from .identify import at_bound
 
@@ -370,9 +448,10 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
                      "h": (float(H.min()), float(H.max()))},
         coords={k: v for k, v in coords.items() if v is not None},
         extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break,
-               "at_bound": at_b, "bound_conditional": conditional,
+               "at_bound": at_b, "bound_conditional": conditional, "base_scatter": scatter,
+               **({"base_sigma_between": float(sigma_b)} if scatter else {}),
                "intervals": {"H": H.tolist(), "lo": lo.tolist(), "hi": hi.tolist(),
-                             "replicate": rep.tolist()}},
+                             "replicate": rep.tolist(), "base": base.tolist()}},
         ensemble=tuple(tuple(map(float, row)) for row in boot),
     )
 
