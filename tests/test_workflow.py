@@ -341,6 +341,25 @@ def test_snakemake_report_of_the_tiny_campaign(tiny):
     assert any(n.endswith("closures.nc") for n in names), names[:20]
 
 
+def test_report_job_record_holds_the_notebooks_hash_not_its_path(tiny):
+    """The report job's record names the notebook by its content hash (a param), not by its
+    path (an input's path is recorded too, and moving the project then remade the report):
+    editing the notebook remakes the report, moving the project does not."""
+    import hashlib
+
+    work, _ = tiny
+    records = [json.loads(f.read_text())
+               for f in (work / ".snakemake" / "metadata").iterdir() if f.is_file()]
+    report = [r for r in records if r.get("rule") == "report"]
+    assert len(report) == 3, [r.get("rule") for r in records]  # one per output
+    sha = hashlib.sha256((REPO / "notebooks" / "campaign_report.py").read_bytes()).hexdigest()
+    for rec in report:
+        assert sha in json.dumps(rec.get("params")), rec.get("params")
+        assert str(REPO) not in json.dumps(rec), json.dumps(rec)[:2000]
+        assert "$GRANFLOW_REPORT_NOTEBOOK" in str(rec.get("code"))
+    assert (work / RESULTS / "report.html").stat().st_size > 0
+
+
 def test_lint_is_clean():
     proc = _check(snakemake(REPO, "--lint", configfile=None))
     assert "Congratulations, your workflow is in a good condition" in proc.stdout + proc.stderr

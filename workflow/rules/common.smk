@@ -30,10 +30,17 @@ else:
 CONDA_ENV = str(REPO / "workflow" / "envs" / "granflow.yaml")
 # Snakemake's own prefix for bash ("set -euo pipefail; ") kept; the prefix is format()ed, so
 # braces are doubled.  Evaluated again by every job process (also a cluster job's).
+# The report's notebook is named the same way (a shell variable, not an input path: an input's
+# path is recorded too); the report job carries the notebook's content hash as a param instead,
+# so that editing the notebook remakes the report and moving the project does not.
+REPORT_NOTEBOOK = REPO / "notebooks" / "campaign_report.py"
 shell.prefix(
     "set -euo pipefail; granflow() {{ "
     + GRANFLOW.replace("{", "{{").replace("}", "}}")
     + ' "$@"; }}; '
+    + "GRANFLOW_REPORT_NOTEBOOK="
+    + shlex.quote(str(REPORT_NOTEBOOK)).replace("{", "{{").replace("}", "}}")
+    + "; "
 )
 
 NAME = config["name"]

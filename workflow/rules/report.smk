@@ -1,11 +1,13 @@
 # The campaign report: notebooks/campaign_report.py (jupytext percent script) executed with
 # nbclient into results/<campaign>/report.html (+ the executed .ipynb and the figures as PNG,
-# which Snakemake's own --report lists next to the library).
+# which Snakemake's own --report lists next to the library).  The notebook is found through the
+# shell prefix's $GRANFLOW_REPORT_NOTEBOOK (common.smk) and tracked by its content hash.
+
+import hashlib
 
 
 rule report:
     input:
-        notebook=str(REPO / "notebooks" / "campaign_report.py"),
         library=f"{RESULTS}/closures.nc",
         manifest=f"{RESULTS}/closures.json",
         fits=f"{RESULTS}/fits.json",
@@ -27,6 +29,7 @@ rule report:
     log:
         f"{RESULTS}/logs/report.log",
     params:
+        notebook_sha256=hashlib.sha256(REPORT_NOTEBOOK.read_bytes()).hexdigest(),
         results=lambda wc, input: os.path.dirname(input.library),
         campaign=NAME,
         timeout=REPORT_TIMEOUT,
@@ -36,6 +39,6 @@ rule report:
     conda:
         CONDA_ENV
     shell:
-        "granflow campaign report --notebook {input.notebook} --results {params.results}"
+        'granflow campaign report --notebook "$GRANFLOW_REPORT_NOTEBOOK" --results {params.results}'
         " --campaign {params.campaign} --out-html {output.html} --out-ipynb {output.ipynb}"
         " --figures {output.figures} --timeout {params.timeout} > {log} 2>&1"
