@@ -268,6 +268,12 @@ for law in laws:
                          "and spread of (bracket midpoint − fitted Eq. 45 angle at H), deg"))
         display(bracket_offsets_by_base(sub, r.params["delta1"], r.params["delta2"],
                                         r.params["A"]))
+        sc = (r.extra or {}).get("base_scatter")
+        if sc:
+            display(Markdown(
+                f"Offset common to one base's brackets (random effect, in the stderrs): "
+                f"σ_b = {sc['sigma_between']:.2f}° between {sc['n_bases']} bases, against "
+                f"{sc['sigma_within']:.2f}° within one"))
 
 # %% [markdown]
 # ## Flow rule F(h/hstop) (Fig. 11)
