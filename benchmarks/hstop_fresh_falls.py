@@ -150,9 +150,7 @@ def main(argv=None):
     bcfg = G.base_settings(config)
     # the configuration's base (where it differs from BaseConfig's defaults), then the options
     defaults = BaseConfig()
-    settling = {k: bcfg[c] for k, c in (("prep_mu_c", "settle_mu_c"),
-                                        ("fill_packing", "fill_packing"), ("band", "band"))
-                if bcfg[c] != getattr(defaults, k)}
+    settling = {k: v for k, v in G.base_making(config).items() if v != getattr(defaults, k)}
     settling.update({k: v for k, v in (("prep_t_c", args.base_prep_tc),
                                        ("prep_e", args.base_prep_e),
                                        ("prep_mu_c", args.base_prep_mu),

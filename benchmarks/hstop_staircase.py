@@ -101,8 +101,7 @@ def main(argv=None):
         prepare_base_file(args.lam, Lx, Ly, int(base_cfg.get("seed", 1)), base,
                           base_layers=float(base_cfg["layers"]),
                           settle_time=float(base_cfg.get("settle_time", 30.0)),
-                          prep_mu_c=base_cfg["settle_mu_c"],
-                          fill_packing=base_cfg["fill_packing"], band=base_cfg["band"])
+                          **G.base_making(config))
     search = HstopSearch(theta0=args.theta0, H0=args.H0, H_max=args.H_max,
                          max_runs=args.max_runs, skip_implied=False)
     prev = None  # (run folder, H) of the last run

@@ -228,6 +228,14 @@ def base_settings(config: dict) -> dict:
             "band": str(b.get("band", d.band))}
 
 
+def base_making(config: dict) -> dict:
+    """The ``base:`` keys of how a base settles, as keyword arguments of
+    :class:`~granflow.engine.chute.BaseConfig` / :func:`granflow.simulate.prepare_base_file`
+    (``prep_mu_c``, ``fill_packing``, ``band``)."""
+    b = base_settings(config)
+    return {"prep_mu_c": b["settle_mu_c"], "fill_packing": b["fill_packing"], "band": b["band"]}
+
+
 def base_seed(config: dict, p: RunPoint) -> int:
     """Seed of the base a run falls onto: ``base.seed``, plus k for replicate k of an hstop
     bisection chain when ``hstop_bisection.replicate_bases`` is set (every other run, and
