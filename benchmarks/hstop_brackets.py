@@ -35,7 +35,7 @@ import pandas as pd
 from granflow.campaign.collect import engine_stop_without_flow_state
 from granflow.fitting.hstop import (ENGINE_STOP_NO_STATE, fit_hstop, hstop_intervals_from_runs,
                                     theta_stop_eq45)
-from granflow.reference import paper_value
+from granflow.reference import paper_hstop_curve, paper_value
 
 POINT = re.compile(r"(?P<law>[A-Za-z_]+)/lambda~(?P<lam>[0-9.]+)/theta~(?P<theta>[0-9.]+)/"
                    r"H~(?P<H>[0-9.]+)(?:/seed~(?P<seed>\d+))?/summary\.json$")
@@ -99,7 +99,8 @@ def _paper_table():
 def hstop_table(runs: pd.DataFrame, lam: float = 1.0):
     """(brackets, fit, rows against Table 1) of the runs."""
     iv = hstop_intervals_from_runs(runs)
-    fit = fit_hstop(iv, n_bootstrap=200, seed=1)
+    law = str(runs["contact_law"].iloc[0]) if "contact_law" in runs and len(runs) else None
+    fit = fit_hstop(iv, lam=lam, contact_law=law, n_bootstrap=200, seed=1)
     table = pd.DataFrame([{"kind": "hstop", "lambda": lam, "parameter": p, "value": v,
                            "stderr": fit.stderr.get(p, math.nan),
                            "parameter_status": fit.param_status.get(p, "not_fitted"),
@@ -170,6 +171,7 @@ def main():
                   + ("drawn per base in the bootstrap)" if sc["sigma_between"] > 0 else
                      "not resolved above the scatter within a base)"))
         _paper_table().print_paper_rows(rows, closure=False)
+        _paper_table().print_curve_rows(paper_hstop_curve([fit]))
 
 
 if __name__ == "__main__":

@@ -524,3 +524,39 @@ def test_bracket_offsets_by_base_recover_known_base_offsets():
     bad.loc[0, "base_seed"] = 2.0
     with pytest.raises(ValueError, match="several bases"):
         bracket_offsets_by_base(bad, *p)
+
+
+def test_paper_hstop_curve_sees_a_curve_offset_that_wide_parameter_stderrs_hide():
+    """Brackets of Table 1's lambda = 1 curve shifted by +0.8 deg at every height (9 heights x 3
+    seeds, 0.2 deg scatter): the curve test finds +0.8 deg within 0.15, z > 3, within 5 % of the
+    angle but not within 2 stderr; unshifted brackets agree within 2 stderr; a 2 deg shift
+    agrees by neither rule.  A fit given as its fits.json dict gives the same row."""
+    import pandas as pd
+
+    from granflow.campaign.serialize import fit_to_dict
+    from granflow.fitting.hstop import fit_hstop, theta_stop_eq45
+    from granflow.reference import paper_hstop_curve
+
+    p = (17.708, 32.780, 3.355)
+
+    def fitted(shift, seed=5):
+        rng = np.random.default_rng(seed)
+        rows = []
+        for k in range(3):
+            for H in (1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0):
+                arrest = float(theta_stop_eq45(H, *p)) + shift + rng.normal(0, 0.2)
+                rows += [dict(theta=arrest - 0.125, H=H, state="arrested", replicate=k),
+                         dict(theta=arrest + 0.125, H=H, state="steady", replicate=k)]
+        return fit_hstop(runs=pd.DataFrame(rows), lam=1.0, contact_law="linear", n_bootstrap=100)
+
+    shifted = fitted(0.8)
+    (row,) = paper_hstop_curve([shifted])
+    assert abs(row["mean_difference"] - 0.8) < 0.15 and row["z"] > 3, row
+    assert row["agrees"] and not row["within_stderr"] and len(row["heights"]) == 9
+    assert paper_hstop_curve([fit_to_dict(shifted)]) == [row]
+    (same,) = paper_hstop_curve([fitted(0.0)])
+    assert abs(same["mean_difference"]) < 0.15 and same["within_stderr"], same
+    (far,) = paper_hstop_curve([fitted(2.0)])
+    assert not far["agrees"], far
+    # no Table 1 value at this lambda, or a failed fit: no row
+    assert paper_hstop_curve([shifted.replace(coords={"lam": 0.7})]) == []

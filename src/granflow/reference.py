@@ -153,6 +153,60 @@ def paper_law_errors(fits, runs) -> list[dict]:
     return rows
 
 
+def paper_hstop_curve(fits, n_sigma: float = 2.0, rel: float = 0.05) -> list[dict]:
+    """Table 1's hstop curve against each fitted one, in the variable a user reads off: the
+    arrest angle theta_stop(H) (Eq. 45 inverted) at the fit's two-sided bracket heights.
+
+    Per-parameter agreement can hide a curve that lies off the paper's at every height: delta1
+    and A are strongly anticorrelated (bootstrap correlation -0.9 and beyond), so each can sit
+    within 2 of its wide stderr while the curve, which the brackets pin far better, does not.
+    Per fit with Table 1 values at its lambda: the mean over the bracket heights of
+    theta_stop(ours) - theta_stop(Table 1) (degrees), its stderr from the fit's ensemble (half
+    the central 68 % range of each refit's mean shift over the same heights), z, the relative
+    difference in angle, the largest pointwise |z| (each height against the ensemble's spread
+    there), and ``agrees`` by the rule of :func:`compare_with_paper` (within ``n_sigma``
+    stderr, or within ``rel`` of the angle where that is looser) with ``within_stderr`` saying
+    which of the two it met.  ``fits``: FitResults or their dicts (``fits.json``)."""
+    import numpy as np
+
+    from .fitting.hstop import theta_stop_eq45
+    from .fitting.result import bootstrap_stderr
+
+    rows = []
+    for f in fits:
+        if isinstance(f, dict):
+            from .campaign.serialize import fit_from_dict
+
+            f = fit_from_dict(f)
+        lam = f.coords.get("lam")
+        if f.kind != "hstop" or lam is None or f.state == "failed":
+            continue
+        ref = [paper_value("hstop", k, lam) for k in ("delta1", "delta2", "A")]
+        iv = (f.extra or {}).get("intervals") or {}
+        lo, hi = (np.asarray(iv.get(k, []), dtype=float) for k in ("lo", "hi"))
+        H = np.unique(np.asarray(iv.get("H", []), dtype=float)[np.isfinite(lo) & np.isfinite(hi)])
+        ens = f.ensemble_array()
+        if not all(math.isfinite(v) for v in ref) or H.size == 0 or len(ens) < 10:
+            continue
+        ours = theta_stop_eq45(H, *(f.params[k] for k in ("delta1", "delta2", "A")))
+        paper = theta_stop_eq45(H, *ref)
+        curves = np.array([theta_stop_eq45(H, *e) for e in ens])
+        diff = float(np.mean(ours - paper))
+        se = bootstrap_stderr(curves.mean(axis=1))
+        se_h = np.array([bootstrap_stderr(curves[:, j]) for j in range(H.size)])
+        z_h = (ours - paper) / np.where(se_h > 0, se_h, np.nan)
+        mean_angle = float(np.mean(paper))
+        within_se = bool(abs(diff) <= n_sigma * se)
+        rows.append({"lambda": float(lam), "contact_law": f.coords.get("contact_law", ""),
+                     "heights": H.tolist(), "mean_difference": diff, "stderr": se,
+                     "z": diff / se if se > 0 else math.nan,
+                     "relative": diff / mean_angle,
+                     "max_abs_z_pointwise": float(np.nanmax(np.abs(z_h))),
+                     "agrees": within_se or abs(diff) <= rel * abs(mean_angle),
+                     "within_stderr": within_se, "status": f.state})
+    return rows
+
+
 #: Measured effect of the soft species t_c = 0.02 (the embedded default's) against the paper's
 #: t_c = 0.005, everything else equal (e = 0.88, mu_c = 0.5, lambda = 1, box 10 x 5, 5-layer base,
 #: same seeds and base; granflow at commit 4b678ff, 2026-11-23).  (soft, paper) per theta at
