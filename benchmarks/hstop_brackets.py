@@ -35,7 +35,7 @@ import pandas as pd
 from granflow.campaign.collect import engine_stop_without_flow_state
 from granflow.fitting.hstop import (ENGINE_STOP_NO_STATE, fit_hstop, hstop_intervals_from_runs,
                                     theta_stop_eq45)
-from granflow.reference import paper_hstop_curve, paper_value
+from granflow.reference import paper_curves, paper_value
 
 POINT = re.compile(r"(?P<law>[A-Za-z_]+)/lambda~(?P<lam>[0-9.]+)/theta~(?P<theta>[0-9.]+)/"
                    r"H~(?P<H>[0-9.]+)(?:/seed~(?P<seed>\d+))?/summary\.json$")
@@ -171,7 +171,7 @@ def main():
                   + ("drawn per base in the bootstrap)" if sc["sigma_between"] > 0 else
                      "not resolved above the scatter within a base)"))
         _paper_table().print_paper_rows(rows, closure=False)
-        _paper_table().print_curve_rows(paper_hstop_curve([fit]))
+        _paper_table().print_curve_rows(paper_curves([fit]))
 
 
 if __name__ == "__main__":

@@ -17,11 +17,12 @@ the runs each closure was fitted on: its Eq. (49) error on them against the pape
 Where a campaign's runs span too little of the law's input to separate its parameters (beta
 and gamma from a few angles), the marginal z-scores above can disagree while the paper's law
 describes the runs as well as it described the paper's own (ratio <= 1): that is agreement of
-the law, not of each parameter, and is printed as such.  The converse is printed for hstop:
-delta1 and A are so anticorrelated that each can agree within its wide stderr while the curve
-theta_stop(H), which the brackets pin far better, lies off Table 1's at every height
-(:func:`granflow.reference.paper_hstop_curve`: mean difference over the bracket heights, its
-stderr from the fit's ensemble, and which rule it meets).
+the law, not of each parameter, and is printed as such.  The converse is printed too: hstop's
+delta1 and A (and Eq. 52's c0, c1, c2) are so correlated that each can agree within its wide
+stderr while the curve, which the data pin far better, lies off the paper's everywhere
+(:func:`granflow.reference.paper_curves`: the mean difference of ours - the paper's over the
+bracket heights or the fitted angles / size ratios, its stderr from the fit's ensemble, and
+which rule it meets).
 
     .venv/bin/python benchmarks/paper_table.py results/reference-lambda1
 """
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from granflow.reference import paper_fit_error, paper_hstop_curve, paper_law_errors, paper_value
+from granflow.reference import paper_fit_error, paper_curves, paper_law_errors, paper_value
 
 #: closure kinds whose parameters the papers give (hstop_eq38 has no paper value)
 KINDS = ("hstop", "flow_rule", "alpha", "density", "stress_ratio", "Ps_law")
@@ -116,21 +117,22 @@ def print_paper_rows(rows, closure: bool = True):
 
 
 def print_curve_rows(rows):
-    """The rows of :func:`granflow.reference.paper_hstop_curve` as a Markdown table."""
+    """The rows of :func:`granflow.reference.paper_curves` as a Markdown table."""
     if not rows:
         return
-    print("\nhstop curve against Table 1's: theta_stop(H) ours - Table 1's, mean over the "
-          "bracket heights")
-    print("| lambda | heights | mean difference (deg) | z | relative | max pointwise abs z "
-          "| agrees |")
-    print("|---|---|---|---|---|---|---|")
+    print("\nThe papers' curves against the fitted ones (ours - the paper's, mean over the "
+          "points)")
+    print("| closure | lambda | curve | points | mean difference | z | relative "
+          "| max pointwise abs z | agrees |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         how = ("yes (within 2 stderr)" if r["within_stderr"] else
                "within 5 % only" if r["agrees"] else "no")
-        print(f"| {r['lambda']:g} | {min(r['heights']):g}-{max(r['heights']):g} "
-              f"({len(r['heights'])}) | {r['mean_difference']:+.2f} +- {r['stderr']:.2f} | "
-              f"{r['z']:+.1f} | {100 * r['relative']:+.1f} % | {r['max_abs_z_pointwise']:.1f} | "
-              f"{how} |")
+        lam = "" if r["lambda"] is None else f"{r['lambda']:g}"
+        print(f"| {r['closure']} | {lam} | {r['variable']} | {r['x']} "
+              f"{min(r['points']):.4g}-{max(r['points']):.4g} ({len(r['points'])}) | "
+              f"{r['mean_difference']:+.3g} +- {r['stderr']:.2g} | {r['z']:+.1f} | "
+              f"{100 * r['relative']:+.1f} % | {r['max_abs_z_pointwise']:.1f} | {how} |")
 
 
 def main():
@@ -155,7 +157,7 @@ def main():
                   f"{r['ratio']:.2f} | {r['n_points']} | {r['status']} |")
     fits_file, runs_file = args.results / "fits.json", args.results / "campaign_table.csv"
     if fits_file.exists():
-        print_curve_rows(paper_hstop_curve(json.loads(fits_file.read_text())))
+        print_curve_rows(paper_curves(json.loads(fits_file.read_text())))
     if fits_file.exists() and runs_file.exists():
         law = paper_law_errors(json.loads(fits_file.read_text()), pd.read_csv(runs_file))
         if law:

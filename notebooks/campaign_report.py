@@ -46,7 +46,7 @@ from granflow.campaign.collect import read_table
 from granflow.campaign.fits import closure_rows, read_fits
 from granflow.closures import open_library
 from granflow.reference import compare_with_paper, paper_law_errors
-from granflow.reference import paper_hstop_curve as compare_curve
+from granflow.reference import paper_curves as compare_curve
 from granflow.reference import paper_value as _paper_value
 from granflow.fitting import (Ps_teq29, alpha_eq54, density_eq52, hstop_eq38, hstop_eq45,
                               mu_eq50, phi_teq28, stress_ratio_eq53)
@@ -658,11 +658,11 @@ if len(cmp_paper):
     display(cmp_paper)
 curve_rows = pd.DataFrame(compare_curve(fits))
 if len(curve_rows):
-    display(Markdown("**hstop curve against Table 1's** (theta_stop(H) ours − Table 1's, mean "
-                     "over the bracket heights, stderr from the fit's ensemble): delta1 and A "
-                     "are so anticorrelated that each can agree within its stderr while the "
-                     "curve, which the brackets pin far better, lies off the paper's:"))
-    display(curve_rows.drop(columns=["heights"]))
+    display(Markdown("**The papers' curves against the fitted ones** (ours − the paper's, mean "
+                     "over the bracket heights or the fitted range, stderr from the fit's "
+                     "ensemble): correlated parameters can each agree within their stderrs "
+                     "while the curve, which the data pin far better, lies off the paper's:"))
+    display(curve_rows.drop(columns=["points"]))
 law_rows = pd.DataFrame(paper_law_errors(fits, table) if "run" in table else [])
 if len(law_rows):
     display(Markdown("**The paper's own law on this campaign's runs** (Eq. 47 with Table 1, "

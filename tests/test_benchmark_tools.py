@@ -126,6 +126,33 @@ def test_paper_law_on_the_runs_is_exact_on_runs_made_from_it():
         math.sqrt(np.sum((0.1 * F) ** 2) / 3))
 
 
+def test_paper_table_prints_the_curve_test_beside_the_parameters(tmp_path, capsys,
+                                                                 monkeypatch):
+    """paper_table.py on a results folder (closures.csv, fits.json) whose hstop brackets follow
+    Table 1's lambda = 1 curve shifted by +0.8 deg: the parameter table is printed, and the
+    curve table says the curve lies off Table 1's by about +0.8 deg, within 5 % only."""
+    from granflow.campaign.fits import write_fits
+    from granflow.fitting.hstop import fit_hstop, theta_stop_eq45
+
+    rng = np.random.default_rng(5)
+    rows = []
+    for k in range(3):
+        for H in (1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0):
+            arrest = float(theta_stop_eq45(H, 17.708, 32.780, 3.355)) + 0.8 + rng.normal(0, 0.2)
+            rows += [dict(theta=arrest - 0.125, H=H, state="arrested", replicate=k),
+                     dict(theta=arrest + 0.125, H=H, state="steady", replicate=k)]
+    fit = fit_hstop(runs=pd.DataFrame(rows), lam=1.0, contact_law="linear", n_bootstrap=100)
+    write_fits([fit], tmp_path / "fits.json", tmp_path / "closures.csv")
+    pt = _load("paper_table")
+    monkeypatch.setattr("sys.argv", ["paper_table.py", str(tmp_path)])
+    pt.main()
+    out = capsys.readouterr().out
+    assert "| delta1 |" in out and "paper parameters agree" in out
+    line = next(x for x in out.splitlines() if x.startswith("| hstop | 1 | theta_stop(H)"))
+    diff = float(line.split("|")[5].split("+-")[0])
+    assert abs(diff - 0.8) < 0.15 and "within 5 % only" in line, line
+
+
 def test_campaign_cost_sums_the_runs_last_log_lines(tmp_path):
     cc = _load("campaign_cost")
     lines = {"chute/linear/lambda~1/theta~24/H~10": "at t = 221 (500 flow particles, 87.3 s wall)",

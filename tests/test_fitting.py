@@ -526,7 +526,7 @@ def test_bracket_offsets_by_base_recover_known_base_offsets():
         bracket_offsets_by_base(bad, *p)
 
 
-def test_paper_hstop_curve_sees_a_curve_offset_that_wide_parameter_stderrs_hide():
+def test_paper_curves_sees_a_curve_offset_that_wide_parameter_stderrs_hide():
     """Brackets of Table 1's lambda = 1 curve shifted by +0.8 deg at every height (9 heights x 3
     seeds, 0.2 deg scatter): the curve test finds +0.8 deg within 0.15, z > 3, within 5 % of the
     angle but not within 2 stderr; unshifted brackets agree within 2 stderr; a 2 deg shift
@@ -535,7 +535,7 @@ def test_paper_hstop_curve_sees_a_curve_offset_that_wide_parameter_stderrs_hide(
 
     from granflow.campaign.serialize import fit_to_dict
     from granflow.fitting.hstop import fit_hstop, theta_stop_eq45
-    from granflow.reference import paper_hstop_curve
+    from granflow.reference import paper_curves
 
     p = (17.708, 32.780, 3.355)
 
@@ -550,13 +550,43 @@ def test_paper_hstop_curve_sees_a_curve_offset_that_wide_parameter_stderrs_hide(
         return fit_hstop(runs=pd.DataFrame(rows), lam=1.0, contact_law="linear", n_bootstrap=100)
 
     shifted = fitted(0.8)
-    (row,) = paper_hstop_curve([shifted])
+    (row,) = paper_curves([shifted])
     assert abs(row["mean_difference"] - 0.8) < 0.15 and row["z"] > 3, row
-    assert row["agrees"] and not row["within_stderr"] and len(row["heights"]) == 9
-    assert paper_hstop_curve([fit_to_dict(shifted)]) == [row]
-    (same,) = paper_hstop_curve([fitted(0.0)])
+    assert row["agrees"] and not row["within_stderr"] and len(row["points"]) == 9
+    assert row["closure"] == "hstop" and row["x"] == "H"
+    assert paper_curves([fit_to_dict(shifted)]) == [row]
+    (same,) = paper_curves([fitted(0.0)])
     assert abs(same["mean_difference"]) < 0.15 and same["within_stderr"], same
-    (far,) = paper_hstop_curve([fitted(2.0)])
+    (far,) = paper_curves([fitted(2.0)])
     assert not far["agrees"], far
     # no Table 1 value at this lambda, or a failed fit: no row
-    assert paper_hstop_curve([shifted.replace(coords={"lam": 0.7})]) == []
+    assert paper_curves([shifted.replace(coords={"lam": 0.7})]) == []
+
+
+def test_paper_curves_set_eq52_and_the_ps_law_against_the_papers_over_the_fitted_range():
+    """Bulk densities from Eq. (52) with the paper's c0, c1, c2 at 14 angles 21-31 deg (scatter
+    0.0005, given as sigma): the curve agrees within 2 stderr over the fitted range; the same
+    data raised by 0.005 (1 % of the packing) lie off it by z > 3 while within 5 %.  The Ps law
+    from T-eq. (29) with Pmax 7.35, k 5.21 at six size ratios agrees within 2 stderr; a fit
+    without an ensemble (or of a reduced form) gives no row."""
+    from granflow.fitting import fit_bulk_density, fit_Ps_law
+    from granflow.fitting.bulk import RHO_PARTICLE
+    from granflow.reference import paper_curves
+
+    rng = np.random.default_rng(2)
+    theta = np.linspace(21.0, 31.0, 14)
+    nu = 0.5985 - np.exp((theta - 40.85) / 4.8) + rng.normal(0, 0.0005, theta.size)
+    sd = np.full(theta.size, 0.0005 * RHO_PARTICLE)
+    (row,) = paper_curves([fit_bulk_density(theta, nu * RHO_PARTICLE, sigma=sd)])
+    assert row["closure"] == "density" and row["within_stderr"], row
+    assert row["points"][0] == 21.0 and row["points"][-1] == 31.0
+    (up,) = paper_curves([fit_bulk_density(theta, (nu + 0.005) * RHO_PARTICLE, sigma=sd)])
+    assert abs(up["mean_difference"] - 0.005) < 0.001 and up["z"] > 3, up
+    assert up["agrees"] and not up["within_stderr"]
+    sigma = np.array([0.5, 0.6, 0.7, 0.8, 0.9, 0.95])
+    Ps = 7.35 * -np.expm1(-5.21 * (1 / sigma - 1)) + rng.normal(0, 0.05, sigma.size)
+    ps = fit_Ps_law(sigma, Ps, np.full(sigma.size, 0.05))
+    (prow,) = paper_curves([ps])
+    assert prow["closure"] == "Ps_law" and prow["within_stderr"], prow
+    assert paper_curves([ps.replace(ensemble=())]) == []
+    assert paper_curves([ps.replace(form="linear")]) == []

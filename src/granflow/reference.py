@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 #: (kind, lambda or None, parameter) -> paper value
 PAPER = {
     ("hstop", 0.5, "delta1"): 17.913, ("hstop", 0.5, "delta2"): 21.357, ("hstop", 0.5, "A"): 11.959,
@@ -153,56 +155,90 @@ def paper_law_errors(fits, runs) -> list[dict]:
     return rows
 
 
-def paper_hstop_curve(fits, n_sigma: float = 2.0, rel: float = 0.05) -> list[dict]:
-    """Table 1's hstop curve against each fitted one, in the variable a user reads off: the
-    arrest angle theta_stop(H) (Eq. 45 inverted) at the fit's two-sided bracket heights.
-
-    Per-parameter agreement can hide a curve that lies off the paper's at every height: delta1
-    and A are strongly anticorrelated (bootstrap correlation -0.9 and beyond), so each can sit
-    within 2 of its wide stderr while the curve, which the brackets pin far better, does not.
-    Per fit with Table 1 values at its lambda: the mean over the bracket heights of
-    theta_stop(ours) - theta_stop(Table 1) (degrees), its stderr from the fit's ensemble (half
-    the central 68 % range of each refit's mean shift over the same heights), z, the relative
-    difference in angle, the largest pointwise |z| (each height against the ensemble's spread
-    there), and ``agrees`` by the rule of :func:`compare_with_paper` (within ``n_sigma``
-    stderr, or within ``rel`` of the angle where that is looser) with ``within_stderr`` saying
-    which of the two it met.  ``fits``: FitResults or their dicts (``fits.json``)."""
-    import numpy as np
-
+def _curve_specs():
+    """closure kind -> (law of (x, params), parameter names, x variable, description)."""
+    from .fitting.bulk import stress_ratio_eq53
     from .fitting.hstop import theta_stop_eq45
+    from .fitting.segregation import Ps_teq29
+
+    return {
+        "hstop": (lambda x, p: theta_stop_eq45(x, p["delta1"], p["delta2"], p["A"]),
+                  ("delta1", "delta2", "A"), "H",
+                  "theta_stop(H) (deg) at the fit's two-sided bracket heights"),
+        "density": (lambda x, p: p["c0"] - np.exp((x - p["c2"]) / p["c1"]), ("c0", "c1", "c2"),
+                    "theta", "rho_c/rho_p (Eq. 52) over the fitted angles"),
+        "stress_ratio": (lambda x, p: stress_ratio_eq53(x, p["d0"], p["d1"]), ("d0", "d1"),
+                         "theta", "K (Eq. 53) over the fitted angles"),
+        "Ps_law": (lambda x, p: Ps_teq29(x, p["Pmax"], p["k"]), ("Pmax", "k"), "sigma",
+                   "Ps (T-eq. 29) over the fitted size ratios"),
+    }
+
+
+def paper_curves(fits, n_sigma: float = 2.0, rel: float = 0.05, n_grid: int = 9) -> list[dict]:
+    """The papers' closure curves against the fitted ones, in the variable a user reads off.
+
+    Per-parameter agreement can hide a curve that lies off the paper's everywhere: hstop's
+    delta1 and A are strongly anticorrelated (bootstrap correlation -0.9 and beyond), so each
+    can sit within 2 of its wide stderr while the curve, which the data pin far better, does
+    not (and likewise c0, c1, c2 of Eq. 52).  For every fit of a full form with paper values
+    (hstop: theta_stop(H) at its two-sided bracket heights; density, K: at ``n_grid`` angles
+    over its fitted range; Ps law: over its size ratios) the mean over those points of ours -
+    the paper's, its stderr from the fit's ensemble (half the central 68 % range of each
+    sample's mean difference over the same points), z, the difference relative to the paper's
+    mean value, the largest pointwise |z| (each point against the ensemble's spread there), and
+    ``agrees`` by the rule of :func:`compare_with_paper` (within ``n_sigma`` stderr, or within
+    ``rel`` of the value where that is looser) with ``within_stderr`` saying which rule it met.
+    ``fits``: FitResults or their dicts (``fits.json``)."""
     from .fitting.result import bootstrap_stderr
 
+    specs = _curve_specs()
     rows = []
     for f in fits:
         if isinstance(f, dict):
             from .campaign.serialize import fit_from_dict
 
             f = fit_from_dict(f)
-        lam = f.coords.get("lam")
-        if f.kind != "hstop" or lam is None or f.state == "failed":
+        if f.kind not in specs or f.state == "failed" or f.form not in ("full", ""):
             continue
-        ref = [paper_value("hstop", k, lam) for k in ("delta1", "delta2", "A")]
-        iv = (f.extra or {}).get("intervals") or {}
-        lo, hi = (np.asarray(iv.get(k, []), dtype=float) for k in ("lo", "hi"))
-        H = np.unique(np.asarray(iv.get("H", []), dtype=float)[np.isfinite(lo) & np.isfinite(hi)])
+        law, names, xname, what = specs[f.kind]
+        lam = f.coords.get("lam") if f.kind in ("hstop",) else None
+        if f.kind == "hstop" and lam is None:
+            continue
+        ref = {k: paper_value(f.kind, k, lam) for k in names}
+        ours = {k: f.params.get(k, math.nan) for k in names}
+        if not all(math.isfinite(v) for v in (*ref.values(), *ours.values())):
+            continue
+        if f.kind == "hstop":
+            iv = (f.extra or {}).get("intervals") or {}
+            lo, hi = (np.asarray(iv.get(k, []), dtype=float) for k in ("lo", "hi"))
+            x = np.unique(np.asarray(iv.get("H", []), dtype=float)[np.isfinite(lo)
+                                                                   & np.isfinite(hi)])
+        else:
+            rng = (f.valid_range or {}).get(xname)
+            x = (np.linspace(float(rng[0]), float(rng[1]), n_grid) if rng is not None
+                 and all(math.isfinite(float(v)) for v in rng) else np.zeros(0))
         ens = f.ensemble_array()
-        if not all(math.isfinite(v) for v in ref) or H.size == 0 or len(ens) < 10:
+        if x.size == 0 or len(ens) < 10:
             continue
-        ours = theta_stop_eq45(H, *(f.params[k] for k in ("delta1", "delta2", "A")))
-        paper = theta_stop_eq45(H, *ref)
-        curves = np.array([theta_stop_eq45(H, *e) for e in ens])
-        diff = float(np.mean(ours - paper))
+        cols = list(f.params)
+        samples = [dict(zip(cols, e)) for e in ens]
+        y_ours, y_paper = law(x, ours), law(x, ref)
+        curves = np.array([law(x, smp) for smp in samples])
+        curves = curves[np.all(np.isfinite(curves), axis=1)]
+        if len(curves) < 10:
+            continue
+        diff = float(np.mean(y_ours - y_paper))
         se = bootstrap_stderr(curves.mean(axis=1))
-        se_h = np.array([bootstrap_stderr(curves[:, j]) for j in range(H.size)])
-        z_h = (ours - paper) / np.where(se_h > 0, se_h, np.nan)
-        mean_angle = float(np.mean(paper))
+        se_x = np.array([bootstrap_stderr(curves[:, j]) for j in range(x.size)])
+        z_x = (y_ours - y_paper) / np.where(se_x > 0, se_x, np.nan)
+        scale = float(np.mean(np.abs(y_paper)))
         within_se = bool(abs(diff) <= n_sigma * se)
-        rows.append({"lambda": float(lam), "contact_law": f.coords.get("contact_law", ""),
-                     "heights": H.tolist(), "mean_difference": diff, "stderr": se,
-                     "z": diff / se if se > 0 else math.nan,
-                     "relative": diff / mean_angle,
-                     "max_abs_z_pointwise": float(np.nanmax(np.abs(z_h))),
-                     "agrees": within_se or abs(diff) <= rel * abs(mean_angle),
+        rows.append({"closure": f.kind, "lambda": lam,
+                     "contact_law": f.coords.get("contact_law", ""), "variable": what,
+                     "x": xname, "points": x.tolist(), "mean_difference": diff, "stderr": se,
+                     "z": diff / se if se > 0 else math.nan, "relative": diff / scale,
+                     "max_abs_z_pointwise": float(np.nanmax(np.abs(z_x))),
+                     "agrees": within_se or abs(diff) <= rel * scale,
                      "within_stderr": within_se, "status": f.state})
     return rows
 
