@@ -363,10 +363,14 @@ def snapshot_interval_note(interval_tc: float) -> str:
 #: the frictional pile's top slice; README "Nor the base's making, beyond one realisation").
 #: ``max_bracket_shift``: the largest move of one bracket between bases (H = 4);
 #: ``mean_offset_range``: the brackets' mean offset from Table 1's curve on each full base;
-#: ``typical_bracket_scatter``: what one base and one insertion seed place a bracket to.
+#: ``typical_bracket_scatter``: what one base and one insertion seed place a bracket to;
+#: ``common_offset_sigma``: the standard deviation of an offset common to all of one base's
+#: brackets (random effect, :func:`granflow.fitting.hstop.base_scatter`, over the 25 brackets on
+#: 4 bases, 2026-11-28), against ``within_base_sigma`` of the brackets about the curve on one
+#: base: what a single-base fit's stderrs leave out is mostly the former.
 BASE_REALISATION_EFFECT = {
     "lambda": 0.5, "max_bracket_shift": 1.75, "mean_offset_range": (0.05, 0.55),
-    "typical_bracket_scatter": 0.5,
+    "typical_bracket_scatter": 0.5, "common_offset_sigma": 0.16, "within_base_sigma": 0.44,
 }
 
 
@@ -379,5 +383,9 @@ def base_realisation_note() -> str:
             f"in these stderrs: measured at lambda = {e['lambda']:g} (granflow.reference."
             f"BASE_REALISATION_EFFECT), single brackets move by up to {e['max_bracket_shift']:g} "
             f"deg between bases (about +-{e['typical_bracket_scatter']:g} deg typical) and the "
-            f"curve's mean offset from Table 1 by {lo:+.2f} ... {hi:+.2f} deg; campaigns over "
-            f"other base.seed values measure it")
+            f"curve's mean offset from Table 1 by {lo:+.2f} ... {hi:+.2f} deg; an offset common "
+            f"to all of one base's brackets has a standard deviation of "
+            f"{e['common_offset_sigma']:g} deg (random effect over 4 bases, against "
+            f"{e['within_base_sigma']:g} deg within one), which these stderrs leave out; "
+            f"campaigns over other base.seed values, or hstop_bisection.replicate_bases, "
+            f"measure it")
