@@ -68,7 +68,8 @@ _FLOW_RULE_PARAMS = {
 
 #: the random effect of :func:`granflow.fitting.hstop.base_scatter` (brackets on several bases)
 _BASE_SIGMA = (U.ANGLE, "standard deviation of an hstop offset common to one base realisation's "
-                        "brackets (random effect in the bootstrap; NaN: all brackets on one base)")
+                        "brackets (random effect in the bootstrap; NaN, or no such variable: all "
+                        "brackets on one base)")
 
 KINDS = {
     "hstop": KindSpec(
