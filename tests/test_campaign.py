@@ -569,6 +569,8 @@ def test_reference_configurations_are_the_papers_setups(name):
         b = cfg["campaigns"]["chute"]["hstop_bisection"]
         assert b["enabled"] and b["tolerance"] <= 0.25 and min(b["H"]) <= 2 and max(b["H"]) >= 16
         assert len({r.H for r in runs}) >= 3  # the flow rule from several heights
+        # the flow inserted at the paper's (its code's) column, not the text's 0.01
+        assert cfg["numerics"]["insertion_growth"] == 5e-5
 
 
 def test_restart_parent_chains_each_height_from_its_middle_angle():
