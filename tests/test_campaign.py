@@ -417,6 +417,43 @@ def test_collect_records_the_base_each_run_fell_onto(tmp_path):
         assert ds["base_seed"].attrs["units"] == "1" and "base" in ds["base_seed"].attrs["long_name"]
     plain = collect_table(rows, tmp_path / "p.nc", tmp_path / "p.csv")
     assert "base_seed" not in plain.columns
+    # rows that recorded no base file: an empty base_sha256, which reads back empty
+    assert set(table["base_sha256"]) == {""} and set(back["base_sha256"]) == {""}
+
+
+def test_collect_refuses_runs_on_two_versions_of_one_base_file(tmp_path):
+    """Runs record the SHA-256 of the base file they fell onto (summary provenance); when runs
+    of one base file of the campaign recorded two different contents (the base remade with
+    other settings after some runs finished), collect refuses the table, naming the file;
+    one content, or runs without a record, pass, and the column reads back."""
+    import json
+
+    from granflow.campaign.serialize import dumps
+
+    rows = _synthetic_rows(tmp_path)
+    config = {"name": "synthetic", "base": {"seed": 4}}
+
+    def with_sha(files, pick):
+        out = []
+        for i, f in enumerate(files):
+            d = json.loads(f.read_text())
+            d["row"]["base_sha256"] = pick(i, d["row"])
+            g = f.with_name(f"sha_{f.name}")
+            g.write_text(dumps(d))
+            out.append(g)
+        return out
+
+    one = with_sha(rows, lambda i, r: "a" * 64 if r["kind"] == "chute" else "")
+    table = collect_table(one, tmp_path / "t.nc", tmp_path / "t.csv", config=config)
+    assert set(table.loc[table["kind"] == "chute", "base_sha256"]) == {"a" * 64}
+    assert list(read_table(tmp_path / "t.nc")["base_sha256"]) == list(table["base_sha256"])
+    two = with_sha(rows, lambda i, r: ("b" if r["theta"] > 25 else "a") * 64
+                   if r["kind"] == "chute" else "")
+    with pytest.raises(ValueError, match=r"bases/lambda~1/box~20x10/base.npy fell onto 2 "
+                                         r"different versions"):
+        collect_table(two, tmp_path / "t2.nc", tmp_path / "t2.csv", config=config)
+    # without the configuration there is no base file to check against
+    collect_table(two, tmp_path / "t3.nc", tmp_path / "t3.csv")
 
 
 def test_collect_writes_a_valid_table_and_lists_excluded_runs(campaign):

@@ -46,8 +46,8 @@ _AVERAGES = {"flow_height": "h", "u_bar": "u_bar", "froude": "F", "alpha": "alph
              "rho_bar": "rho_bar", "rho_c": "rho_c"}
 #: extra (non-schema) columns every row carries
 EXTRA_COLUMNS = ("kind", "run", "mu_bar", "t_final", "steady_start", "stop_reason", "n_flow",
-                 "state_confidence", "segregation_state", "replicate")
-_STRING_EXTRAS = ("kind", "run", "stop_reason", "segregation_state")
+                 "state_confidence", "segregation_state", "replicate", "base_sha256")
+_STRING_EXTRAS = ("kind", "run", "stop_reason", "segregation_state", "base_sha256")
 EXTRA_ATTRS = {
     "kind": {"long_name": "campaign the run belongs to (chute or segregation)"},
     "run": {"long_name": "run directory relative to the campaign results folder"},
@@ -60,6 +60,9 @@ EXTRA_ATTRS = {
     "segregation_state": {"long_name": "segregated state of a bidisperse run (steady, drifting; "
                                        "empty for monodisperse runs)"},
     "replicate": U.cf(U.DIMENSIONLESS, "replicate index k of the run point (insertion seed + k)"),
+    "base_sha256": {"long_name": "SHA-256 of the base file the run fell onto, as the run "
+                                 "recorded it (empty: not recorded, or a base prepared from the "
+                                 "run's parameters)"},
     "base_seed": U.cf(U.DIMENSIONLESS, "seed of the rough base the run fell onto (base.seed; + k "
                                        "for bracket chain k under hstop_bisection."
                                        "replicate_bases)"),
@@ -298,7 +301,8 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
                             else str(summ.get("stop_reason", "")).split(":")[0]),
                n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")),
                segregation_state="" if seg_state is None else
-               ("steady" if seg_state else "drifting"), replicate=float(point.replicate))
+               ("steady" if seg_state else "drifting"), replicate=float(point.replicate),
+               base_sha256=str((summ.get("provenance") or {}).get("base_sha256") or ""))
     if row["state"] == "steady" and "layering_amplitude" not in summ:
         # a run classified before layering was checked (granflow.simulate does it since
         # 2026-11-26): the same rule on its steady-window profile
@@ -425,8 +429,30 @@ def read_table(path) -> pd.DataFrame:
                                      f"or corrupt ({type(exc).__name__}: {exc})") from None
     for col in df.columns:
         if col in STRING_COLUMNS or col in _STRING_EXTRAS:
-            df[col] = df[col].fillna("").astype(str).astype(object)
+            df[col] = df[col].astype(object).where(df[col].notna(), "").astype(str).astype(object)
     return campaign_table_from_records(df.to_dict("records"))
+
+
+def check_one_base_per_file(table: pd.DataFrame, base_files) -> None:
+    """Raise ValueError when runs of one base file of the campaign (``base_files``: each row's
+    path, :func:`granflow.campaign.grid.base_path`) recorded different contents of it
+    (``base_sha256``): the base was remade with other settings (``base:`` making, layers) while
+    finished runs kept the old one, and a fit would join runs on two bases as one.  Runs that
+    recorded no base file are not checked."""
+    if "base_sha256" not in table.columns:
+        return
+    sha = table["base_sha256"].astype(str).to_numpy()
+    files = np.asarray(list(base_files), dtype=object)
+    for path in sorted(set(files)):
+        sel = (files == path) & (sha != "")
+        found = sorted(set(sha[sel]))
+        if len(found) > 1:
+            runs = table["run"].to_numpy()
+            groups = {f[:12]: sorted(runs[sel & (sha == f)])[:3] for f in found}
+            raise ValueError(
+                f"the runs on {path} fell onto {len(found)} different versions of it "
+                f"{groups}: the base was remade with other settings after some runs finished; "
+                "rerun the runs of the old base before fitting them together")
 
 
 def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation=None,
@@ -460,11 +486,17 @@ def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation
         for c in EXTRA_COLUMNS:
             table[c] = pd.Series([], dtype=object if c in _STRING_EXTRAS else float)
     table = table[[c for c in cols if c in table.columns]]
+    # rows of runs from before it was recorded: empty
+    table["base_sha256"] = (table["base_sha256"] if "base_sha256" in table.columns else
+                            pd.Series([""] * len(table), index=table.index, dtype=object)).map(
+        lambda v: "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v))
     if config is not None:  # which base each run fell onto (the configuration knows)
-        from .grid import base_seed
+        from .grid import base_path, base_seed
 
         table["base_seed"] = pd.Series([float(base_seed(config, parse_run_path(r)))
                                         for r in table["run"]], index=table.index, dtype=float)
+        check_one_base_per_file(table, [base_path(config, parse_run_path(r))
+                                        for r in table["run"]])
     Path(out_csv).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_csv, table.to_csv(index=False, float_format="%.17g").encode())
     atomic_to_netcdf(table_dataset(table, attrs, config), out_nc)
