@@ -21,6 +21,10 @@ Per-run uncertainties: ``<col>_sem`` is the standard error of the run's mean fro
 decorrelated time windows (:func:`granflow.steady.timeseries.standard_error_of_mean`); for Ps it
 comes from the per-window fits of T-eq. (28), not from the covariance of the (correlated)
 coarse-grained profile points.
+
+Which base a run fell onto: ``base_seed`` (from the campaign's configuration) and
+``base_sha256`` (what the run recorded, ``summary["provenance"]``); runs of one base file that
+recorded two versions of it are refused (:func:`check_one_base_per_file`).
 """
 
 from __future__ import annotations
