@@ -260,21 +260,15 @@ def bracket_offsets_by_base(runs: pd.DataFrame, delta1: float, delta2: float, A:
     cols = ["base_seed", "brackets", "mean_offset", "std_offset"]
     if "base_seed" not in runs.columns or not len(runs):
         return pd.DataFrame(columns=cols)
-    seeds = runs.groupby(runs["replicate"].fillna(0).astype(int))["base_seed"].agg(
-        lambda v: sorted(set(v.dropna().astype(int))))
-    mixed = {int(k): v for k, v in seeds.items() if len(v) > 1}
-    if mixed:
-        raise ValueError(f"replicates {sorted(mixed)} hold runs of several bases {mixed}: a "
-                         "bracket must lie on one base")
-    iv = hstop_intervals_from_runs(runs)
-    two = np.isfinite(iv["theta_arrested_max"]) & np.isfinite(iv["theta_flowing_min"])
+    iv = hstop_intervals_from_runs(runs)  # each bracket's base; refused when it has two
+    two = (np.isfinite(iv["theta_arrested_max"]) & np.isfinite(iv["theta_flowing_min"])
+           & iv["base"].notna())
     iv = iv[two]
     mid = 0.5 * (iv["theta_arrested_max"] + iv["theta_flowing_min"])
     off = mid - theta_stop_eq45(iv["H"].to_numpy(float), delta1, delta2, A, d)
-    base = iv["replicate"].map(lambda k: seeds.get(int(k), [np.nan])[0])
     rows = [{"base_seed": int(b), "brackets": int(len(g)), "mean_offset": float(g.mean()),
              "std_offset": float(g.std(ddof=1)) if len(g) > 1 else math.nan}
-            for b, g in off.groupby(base.to_numpy())]
+            for b, g in off.groupby(iv["base"].astype(float).to_numpy())]
     return pd.DataFrame(rows, columns=cols)
 
 # ---------------------------------------------------------------------------- fitting
