@@ -256,7 +256,8 @@ def bracket_offsets_by_base(runs: pd.DataFrame, delta1: float, delta2: float, A:
     ``base_seed`` of ``runs`` (campaign-table rows with theta, H, state, replicate, base_seed)
     with the number of two-sided brackets, their mean and standard deviation of (midpoint -
     curve angle at H) in degrees.  A base's mean far from the others' is the scatter between
-    base realisations (``hstop_bisection.replicate_bases``) that one base's fit cannot see."""
+    base realisations (``hstop_bisection.replicate_bases``) that a single base's fit cannot
+    see and that the fit over several bases carries as a random effect (:func:`base_scatter`)."""
     cols = ["base_seed", "brackets", "mean_offset", "std_offset"]
     if "base_seed" not in runs.columns or not len(runs):
         return pd.DataFrame(columns=cols)
