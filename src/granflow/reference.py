@@ -189,19 +189,18 @@ def paper_curves(fits, n_sigma: float = 2.0, rel: float = 0.05, n_grid: int = 9)
     ``agrees`` by the rule of :func:`compare_with_paper` (within ``n_sigma`` stderr, or within
     ``rel`` of the value where that is looser) with ``within_stderr`` saying which rule it met.
     ``fits``: FitResults or their dicts (``fits.json``)."""
+    from .campaign.serialize import fit_from_dict
     from .fitting.result import bootstrap_stderr
 
     specs = _curve_specs()
     rows = []
     for f in fits:
         if isinstance(f, dict):
-            from .campaign.serialize import fit_from_dict
-
             f = fit_from_dict(f)
         if f.kind not in specs or f.state == "failed" or f.form not in ("full", ""):
             continue
         law, names, xname, what = specs[f.kind]
-        lam = f.coords.get("lam") if f.kind in ("hstop",) else None
+        lam = f.coords.get("lam") if f.kind == "hstop" else None  # Eq. 52, 53, T-eq. 29: none
         if f.kind == "hstop" and lam is None:
             continue
         ref = {k: paper_value(f.kind, k, lam) for k in names}
