@@ -273,10 +273,12 @@ class _Interrupt:
         pass
 
 
-def test_killed_top_up_run_resumes_to_identical_numbers(parent, tmp_path):
+def test_killed_top_up_run_resumes_to_identical_numbers(parent, tmp_path, monkeypatch):
     """A topped-up restart killed part-way resumes from its checkpoint (the top-up is not
-    applied a second time: the checkpoint holds the topped-up system) and ends with exactly
-    the numbers of an undisturbed run."""
+    applied a second time, nor poured and thrown away: the checkpoint holds the topped-up
+    system) and ends with exactly the numbers of an undisturbed run."""
+    import granflow.simulate as gs
+
     state = parent / "parent" / "final_state.npz"
     params = dict(BASE, theta=26.0, H=5.0, t_end=3.0, checkpoint_every_s=0.0)
     whole = tmp_path / "whole"
@@ -287,8 +289,12 @@ def test_killed_top_up_run_resumes_to_identical_numbers(parent, tmp_path):
         simulate(params, killed, from_state=state, top_up=True,
                  extra_observers=(_Interrupt(1.5),))
     assert (killed / "checkpoint.npz").exists() and not (killed / "summary.json").exists()
+    poured = []
+    real_top_up = gs.top_up_flow
+    monkeypatch.setattr(gs, "top_up_flow", lambda *a: poured.append(1) or real_top_up(*a))
     res = simulate(params, killed, from_state=state, top_up=True,
                    extra_observers=(_Interrupt(math.inf),))
+    assert poured == []  # resumed: the checkpoint's particles, none poured
     assert res["run"].resumed_from >= 1.0 and res["cost"]["segments"] == 2  # it did resume
     a, b = np.load(whole / "final_state.npz"), np.load(killed / "final_state.npz")
     assert int((~b["fixed"]).sum()) == 120

@@ -553,13 +553,16 @@ def startup_time(system, theta_deg: float) -> float:
     return 2.0 * math.sqrt(2.0 * dz / math.cos(math.radians(theta_deg)))
 
 
-def restart_state(state_file, cfg: ChuteConfig, top_up: bool = False):
+def restart_state(state_file, cfg: ChuteConfig, top_up: bool = False, pour: bool = True):
     """The particle system of a saved state, tilted to ``cfg.theta`` with the clock at t = 0,
     and the parent's provenance.  Raises ValueError if the state is not of this chute (box,
     flow-particle count, time step) -- checked before any compute.  ``top_up``: a state with
     fewer flow particles than ``cfg.H`` gives gets the rest poured on top, at rest, its contacts
     kept (:func:`granflow.engine.chute.top_up_flow`; the paper's §6 staircase, which adds 2
-    particle heights to an arrested pile); the provenance records how many (``topped_up``)."""
+    particle heights to an arrested pile); the provenance records how many (``topped_up``).
+    ``pour=False``: the same checks and provenance (``topped_up`` the number that a top-up
+    adds), but the particles are not poured -- the caller pours them with ``top_up_flow`` only
+    if it does not resume a checkpoint, which holds the topped-up system already."""
     import hashlib
     import json
 
@@ -587,7 +590,12 @@ def restart_state(state_file, cfg: ChuteConfig, top_up: bool = False):
     # their history are kept; the first half kick then uses the new gravity)
     system.force[mobile] += system.mass[mobile, None] * (g_new - system.gvec)[None, :]
     system.gvec = g_new
-    added = top_up_flow(system, cfg) if top_up else 0
+    if not top_up:
+        added = 0
+    elif pour:
+        added = top_up_flow(system, cfg)
+    else:
+        added = n_expected - n_flow
     parent_time = float(system.time)
     system.time = 0.0
     system.step_count = 0
@@ -684,13 +692,20 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         if engine != "numba":
             raise ValueError(f"engine: a restart from a saved state (--from) needs the numba "
                              f"engine, not {engine!r}")
-        system, parent = restart_state(from_state, cfg, top_up=top_up)
+        # the top-up is poured below, only when no checkpoint is resumed
+        system, parent = restart_state(from_state, cfg, top_up=top_up, pour=False)
     identity = run_identity(p, base_file, parent, top_up)
     if ckpt.exists() and engine == "numba":  # a checkpoint of other physics is moved aside
         keep_matching_checkpoint(ckpt, identity)
     if ckpt.exists() and engine == "numba":  # resume: the run restores system and observers
         system, _ = load_state(ckpt, kind="checkpoint", remove_if_corrupt=True)
-    elif from_state is None:  # a fresh run: build the chute (a restart has its system already)
+    elif from_state is not None:  # a restart: its system is loaded; pour a top-up's particles
+        if top_up:
+            added = top_up_flow(system, cfg)
+            if added != parent.get("topped_up", 0):  # restart_state counted them before
+                raise RuntimeError(f"top-up poured {added} particles, "
+                                   f"{parent.get('topped_up', 0)} expected")
+    else:  # a fresh run: build the chute
         if base_file is not None:
             base = load_base_file(base_file)
         else:
