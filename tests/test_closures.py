@@ -141,6 +141,32 @@ def test_bad_files_give_clear_errors(lib_path, tmp_path):
         open_library(tmp_path / "missing.nc")
 
 
+def test_strings_are_stored_as_character_arrays(lib_path):
+    """No variable-length data on disk (schema 2.1): HDF5 allocates a variable-length string's
+    stored length before it can tell the file is corrupt (one flipped byte of a 2.0 library
+    made its reader allocate 1.2 GB); a character array is the size its shape declares.  The
+    strings read back unchanged."""
+    lib = open_library(lib_path)
+    strings = [n for n, v in lib.variables.items() if v.dtype.kind in "OUS"]
+    assert len(strings) > 50  # messages, statuses, forms, reasons, the table's text columns
+    with netCDF4.Dataset(lib_path) as nc:
+        for name in strings:
+            assert nc[name].dtype == np.dtype("S1"), (name, nc[name].dtype)
+        assert not [n for n, v in nc.variables.items() if v.dtype is str]
+    assert lib.attrs["schema_version"] == "2.1"
+    assert lib["hstop_message"].sel({"lambda": 1.0, "contact_law": "linear"}).item() == "synthetic"
+    assert list(gc.campaign_table(lib)["run_id"]) == ["r001", "r002", "r003"]
+    # a library of schema 2.0 (variable-length strings) still opens, with the same data
+    old = lib_path.with_name("rough-v2.nc")
+    as_2_0 = lib.assign_attrs(schema_version="2.0")
+    for var in as_2_0.variables.values():
+        var.encoding = {}  # xarray's default: variable-length strings
+    as_2_0.to_netcdf(old, engine="netcdf4")
+    with netCDF4.Dataset(old) as nc:
+        assert nc["hstop_message"].dtype is str
+    assert open_library(old).attrs["content_hash"] == lib.attrs["content_hash"]
+
+
 def test_content_hash_mismatch_detected(lib_path, tmp_path):
     tampered = tmp_path / "tampered.nc"
     shutil.copy(lib_path, tampered)

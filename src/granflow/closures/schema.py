@@ -20,7 +20,8 @@ size ratio) as these variables, every one with CF ``units`` and ``long_name``:
   unless asked to extrapolate);
 * declared extras, e.g. ``segregation_Ps_ci95_low/high``.
 
-The campaign table travels along on a ``run`` dimension as ``campaign_<column>``.
+The campaign table travels along on a ``run`` dimension as ``campaign_<column>``.  Strings are
+stored as UTF-8 character arrays (since schema 2.1; xarray reads them back as strings).
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ from dataclasses import dataclass, field
 from .. import units as U
 
 SCHEMA_NAME = "granflow.closures"
-SCHEMA_VERSION = "2.0"
+#: 2.1: strings are stored as character arrays (2.0: variable-length strings); the same data
+SCHEMA_VERSION = "2.1"
 LAMBDA_DIM = "lambda"
 CONTACT_LAW_DIM = "contact_law"
 SIGMA_DIM = "sigma"
