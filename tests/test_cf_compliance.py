@@ -25,6 +25,7 @@ from pathlib import Path
 import netCDF4
 import numpy as np
 import pytest
+import xarray as xr
 
 from cf_compliance import check
 
@@ -109,6 +110,22 @@ def _variables(path):
         for name, var in nc.variables.items():
             yield name, var.dtype, {k: var.getncattr(k) for k in var.ncattrs()}, \
                 set(nc.dimensions), dict(nc.__dict__)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_strings_are_character_arrays_not_variable_length(outputs, kind):
+    """No output holds HDF5 variable-length strings, whose stored lengths a reader allocates
+    before it can tell a file is corrupt (:func:`granflow.cfconventions.encoding`)."""
+    files, _ = outputs
+    with netCDF4.Dataset(files[kind]) as nc:
+        vlen = [n for n, v in nc.variables.items() if v.dtype is str or not
+                isinstance(v.dtype, np.dtype)]
+    assert not vlen, vlen
+    with xr.open_dataset(files[kind]) as ds:  # and they read back as strings
+        text = [n for n, v in ds.variables.items() if v.dtype.kind in "OU"]
+        assert all(isinstance(ds[n].values.ravel()[0], str) for n in text if ds[n].size), text
+    if kind in ("campaign_table.nc", "closure library"):
+        assert text  # these hold text: run ids, states, messages
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -132,12 +132,22 @@ def apply(ds, *, kind: str, title: str, summary: str, config=None, identifier=No
 
 
 def encoding(ds) -> dict:
-    """netCDF encoding: no _FillValue on coordinates, int64 stored as int32."""
+    """netCDF encoding: no _FillValue on coordinates, int64 stored as int32, strings as
+    fixed-width UTF-8 character arrays (CF's classic strings; xarray reads them back as
+    strings) instead of HDF5 variable-length strings.
+
+    Why character arrays: a variable-length string's length is a number in the file, and HDF5
+    allocates what it says before it can tell the file is corrupt -- one flipped byte made the
+    reader of a 0.5 MB closure library (schema 2.0) allocate 1.2 GB before it failed (1 in 1500
+    single-byte flips; 0 in 1500 with character arrays).  A character array is the size its
+    shape declares."""
     enc = {}
     for name, var in ds.variables.items():
         e = {}
         if name in ds.coords:
             e["_FillValue"] = None
+        if var.dtype.kind in "OUS":
+            e["dtype"] = "S1"
         if var.dtype.kind in "iu" and var.dtype.itemsize == 8:
             values = np.asarray(var.values)
             if values.size and (values.min() < np.iinfo(np.int32).min

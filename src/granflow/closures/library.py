@@ -71,18 +71,6 @@ def content_hash(ds: xr.Dataset) -> str:
     return "sha256:" + sha.hexdigest()
 
 
-def string_encoding(ds: xr.Dataset) -> dict:
-    """netCDF encoding that stores every string variable as a fixed-width UTF-8 character array
-    (``char``, CF's classic strings) instead of HDF5 variable-length strings.
-
-    Why: a variable-length string's length is a number in the file, and HDF5 allocates what it
-    says before it can tell it is corrupt -- one flipped byte made the reader of a 0.5 MB library
-    allocate 1.2 GB before it failed (schema 2.0).  A character array's size is its declared
-    shape; the values read back are the same strings (the content hash is unchanged)."""
-    return {name: {"dtype": "S1"} for name, var in ds.variables.items()
-            if var.dtype.kind in "OUS"}
-
-
 # ---------------------------------------------------------------------------- building
 def _flatten(fits):
     out = []
@@ -476,8 +464,8 @@ def write_library(directory, name: str, fits, campaign_table=None, config=None, 
                                    default_contact_law=default_contact_law)
         staging = directory / f".{final.name}.staging-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         try:
-            atomic_to_netcdf(ds, staging, engine="netcdf4", format="NETCDF4",
-                             encoding=string_encoding(ds))
+            # strings as character arrays (schema 2.1): granflow.cfconventions.encoding
+            atomic_to_netcdf(ds, staging, engine="netcdf4", format="NETCDF4")
             try:
                 os.link(staging, final)  # atomic; fails if final exists
             except FileExistsError:
