@@ -491,3 +491,20 @@ def test_arrest_tests_counts_where_granflow_and_the_papers_test_disagree(tmp_pat
     out = capsys.readouterr().out
     assert out.count("<- differs") == 1
     assert "3 runs; granflow arrested, paper test not: 1; paper test arrested, granflow not: 0" in out
+
+
+
+def test_library_damage_memory_finds_the_stored_lengths_of_variable_length_data():
+    """benchmarks/library_damage_memory.py's "lengths" damage: the parser finds each 4-byte
+    length stored before the address of a global heap collection (a known layout) and skips
+    zero lengths."""
+    import struct
+
+    bench = _load("library_damage_memory")
+    heap = 64
+    blob = bytearray(256)
+    blob[heap:heap + 4] = b"GCOL"
+    for offset, length in ((8, 5), (24, 0), (120, 77), (200, 2)):
+        blob[offset:offset + 4] = struct.pack("<I", length)
+        blob[offset + 4:offset + 12] = struct.pack("<Q", heap)
+    assert bench.length_fields(bytes(blob)) == [8, 120, 200]
