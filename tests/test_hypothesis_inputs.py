@@ -449,7 +449,7 @@ def test_library_files_clear_error_or_the_original_library(small_library, tmp_pa
     bad = tmp_path_factory.mktemp("badlib", numbered=True) / "rough-v1.nc"
     bad.write_bytes(bytes(blob))
     try:
-        with bounded_resident_growth(MAX_LIBRARY_READ):  # no stored length is believed
+        with bounded_resident_growth(MAX_LIBRARY_READ):  # no corrupt length is allocated
             lib = open_library(bad)
     except (ValueError, FileNotFoundError) as exc:
         assert str(bad) in str(exc), exc
