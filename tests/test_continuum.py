@@ -407,6 +407,124 @@ def test_switch_prediction_refuses_unfitted_states(library):
                           allow_unidentified=True, uncertainty=False)
 
 
+# ----------------------------------------------------------------------------- column
+def _steady_u(c, h):
+    return c.steady_froude(h) * math.sqrt(c.g_cos * h)
+
+
+def test_column_slowest_modes_are_the_zeros_of_bessel_j_minus_one_third():
+    """The discretised linear column (viscosity ~ sqrt(1 - z/h), no slip below, free surface
+    above) against the exact modes s^(1/4) J_(-1/3)((4/3) sqrt(lambda) s^(3/4)): lambda_k =
+    (3 j_k / 4)^2 with j_k the zeros of J_(-1/3), found here from scipy's Bessel function
+    (1.8664, 4.9879, 8.1243; the column code never sees them)."""
+    from scipy import optimize, special
+
+    from granflow.continuum.column import (LINEAR_TAU_RATIO, linear_column_eigenvalues,
+                                           slowest_mode_eigenvalue)
+
+    zeros = [optimize.brentq(lambda x: special.jv(-1.0 / 3.0, x), a, b)
+             for a, b in ((1.0, 2.5), (4.0, 6.0), (7.0, 9.0))]
+    exact = [(0.75 * j) ** 2 for j in zeros]
+    assert exact[0] == pytest.approx(1.95934, abs=1e-5)
+    for n, tol in ((64, 3e-3), (512, 1e-4)):
+        assert linear_column_eigenvalues(n) == pytest.approx(exact, rel=tol)
+    # second order in the cell size: 8x finer cells, ~64x smaller error on the slowest mode
+    e64, e512 = (abs(linear_column_eigenvalues(n)[0] - exact[0]) for n in (64, 512))
+    assert 30 < e64 / e512 < 130
+    assert slowest_mode_eigenvalue() == pytest.approx(exact[0], rel=1e-12)
+    assert LINEAR_TAU_RATIO == pytest.approx(2.5 / exact[0], rel=1e-12)
+
+
+@pytest.mark.parametrize("gamma", [0.0, 0.04, 0.2])
+def test_column_small_switch_relaxes_1_276_times_slower_than_the_ode(gamma):
+    """The nonlinear column solver, a small change of inclination: after the fast modes have
+    gone, u_bar approaches its steady value at the slowest mode's rate, 5 / (2 lambda1) =
+    1.276 times the linearised ODE's e-folding time, for any friction law (here Eq. 50 with
+    three gammas)."""
+    from granflow.continuum.column import LINEAR_TAU_RATIO, column_layer
+
+    p = dict(P1, gamma=gamma)
+
+    def law(theta):
+        return FlowClosures(theta=theta, mu=lambda h, F: mu_eq50(h, F, **p))
+
+    h = 10.0
+    c1, c2 = law(25.0), law(25.02)
+    tau_ode = linear_relaxation_time(c2, h)
+    col = column_layer(c1.at(25.02), h, _steady_u(c1, h), 8 * tau_ode, n_z=128, n_out=801,
+                       rtol=1e-10, atol=1e-13)
+    # the rate from du_bar/dt (free of the discrete steady state's O(dz^1.5) offset)
+    t = col.t.values
+    dudt = np.gradient(col.u_bar.values, t)
+    late = (t > 2 * tau_ode) & (t < 6 * tau_ode)
+    rate = -np.polyfit(t[late], np.log(dudt[late]), 1)[0]
+    assert 1.0 / rate == pytest.approx(LINEAR_TAU_RATIO * tau_ode, rel=5e-3)
+    assert float(col.tau_linear) == pytest.approx(LINEAR_TAU_RATIO * tau_ode, rel=1e-12)
+    assert col.u_bar.values[-1] == pytest.approx(float(col.u_steady), rel=2e-4)
+
+
+def test_column_steady_state_is_bagnold_at_the_closures_steady_froude_number():
+    from granflow.continuum.column import column_layer
+
+    c = eq50(26.0)
+    h = 8.0
+    u_s = _steady_u(c, h)
+    col = column_layer(c, h, u_s, 200.0, n_z=128)
+    z = col.z.values
+    bagnold = (5.0 / 3.0) * u_s * (1.0 - (1.0 - z / h) ** 1.5)
+    assert np.abs(col.u.values[-1] - bagnold).max() < 1e-3 * u_s
+    assert abs(col.u_bar.values[-1] / u_s - 1.0) < 1e-4
+    # from far away too (a fast start relaxes to the same state)
+    fast = column_layer(c, h, 2.0 * u_s, 800.0, n_z=64)
+    assert fast.u_bar.values[-1] == pytest.approx(u_s, rel=1e-3)
+
+
+def test_column_momentum_balance_is_exact():
+    """h du_bar/dt = h g sin(theta) - tau_base: the finite-volume fluxes telescope, so the
+    column's depth-integrated momentum changes only by gravity and the base's stress."""
+    from granflow.continuum import column
+
+    c = eq50(27.0)
+    h = 6.0
+    col = column.column_layer(c, h, 0.3, 40.0, n_z=32, n_out=4001, rtol=1e-10, atol=1e-13)
+    u = col.u.values
+    dz = h / u.shape[1]
+    shear_base = u[:, 0] / (0.5 * dz)
+    F_base = shear_base * 0.4 * h / np.sqrt(c.g_cos * h)
+    tau_b = c.g_cos * h * mu_eq50(np.full_like(F_base, h), F_base, **P1) * np.tanh(
+        shear_base / (column.EPS_SHEAR * 0.3 / h))
+    t = col.t.values
+    lhs = h * (col.u_bar.values[-1] - col.u_bar.values[0])
+    rhs = h * c.g_cos * c.tan_theta * t[-1] - np.trapezoid(tau_b, t)
+    assert lhs == pytest.approx(rhs, rel=2e-4)
+
+
+def test_column_and_switch_model_reject_bad_input():
+    from granflow.continuum.column import column_layer
+
+    c = eq50(26.0)
+    for kw, field in ((dict(h=-1.0), "h"), (dict(t_end=0.0), "t_end"), (dict(u0=math.nan), "u0"),
+                      (dict(n_z=4), "n_z")):
+        args = dict(h=8.0, u0=0.5, t_end=10.0) | kw
+        with pytest.raises(ValueError, match=field):
+            column_layer(c, **args)
+    with pytest.raises(ValueError, match="model = 'depth'.*allowed"):
+        switch_prediction(c, h=8.0, u0=0.5, theta=26.0, t_end=10.0, model="depth")
+
+
+def test_switch_prediction_runs_the_column_over_the_ensemble(library):
+    kw = dict(h=20.0, u0=1.0, theta=26.0, t_end=150.0, allow_unidentified=True, n_ensemble=20,
+              extrapolate=True)
+    ode = switch_prediction(library, **kw)
+    col = switch_prediction(library, model="column", **kw)
+    assert col.attrs["continuum_layer_model"] == "column" and col.attrs["n_ensemble"] == 20
+    # same closures, same steady state; the column's transient is slower
+    assert float(col.u_steady.sel(stat="value")) == pytest.approx(
+        float(ode.u_steady.sel(stat="value")), rel=1e-12)
+    assert float(col.tau.sel(stat="value")) > 1.1 * float(ode.tau.sel(stat="value"))
+    assert float(col.tau.sel(stat="std")) > 0
+
+
 # ----------------------------------------------------------------------------- CF outputs
 def test_model_results_are_cf_compliant(tmp_path):
     from cf_compliance import check
@@ -415,7 +533,10 @@ def test_model_results_are_cf_compliant(tmp_path):
 
     c = eq50(26.0, K=1.05, alpha=1.25)
     x = np.arange(40) + 0.5
+    from granflow.continuum.column import column_layer
+
     results = {"uniform": uniform_layer(c, 8.0, 0.3, 20.0, n_out=21),
+               "column": column_layer(c, 8.0, 0.3, 20.0, n_z=16, n_out=21),
                "shallow": shallow_layer(c, x, 6.0 + np.exp(-((x - 10) / 3) ** 2), 0.5, 5.0,
                                         n_out=3),
                "segregation": segregation_layer(6.0, 0.02, 8.0, 0.5, 50.0, n=40, n_out=6)}

@@ -4,6 +4,11 @@
   Eq. (34) reduced to du/dt = g cos(theta) (tan(theta) - mu(h, F)) with mu of Eq. (50);
   :func:`uniform_layer`, :func:`switch_prediction` (over the library's parameter ensemble),
   :func:`fit_relaxation`.
+* :mod:`.column` -- the same friction law as a local rheology in a depth-resolved column
+  (a mu(I)-type model, Jop et al. 2005): after a change of inclination the profile adjusts by
+  shear, and the layer relaxes 5 / (2 lambda1) = 1.276 times more slowly than the ODE (linear
+  theory, lambda1 from the first zero of J_(-1/3)): :func:`column_layer`, or
+  ``switch_prediction(..., model="column")``.
 * :mod:`.shallow` -- one-dimensional finite-volume solver of Eq. (34a-c) with mu(h, F), alpha
   and K from the library: :func:`shallow_layer`; optionally with the depth-averaged viscous
   stress of Gray & Edwards (2014) (``viscosity=``, nu from
@@ -46,6 +51,9 @@ Example: open a library and run each model ::
     pred = switch_prediction(lib, h=8.0, u0=0.9, theta=26.0, t_end=200.0,
                              allow_unidentified=True)
     pred.u_steady.sel(stat="value"), pred.tau.sel(stat="std")
+    #    ... and as a depth-resolved column with the same closures (the profile adjusts too)
+    col = switch_prediction(lib, h=8.0, u0=0.9, theta=26.0, t_end=200.0,
+                            allow_unidentified=True, model="column")
     # 2. a bump travelling down a periodic chute of length 200
     c = FlowClosures.from_library(lib, 26.0, allow_unidentified=True)
     x = np.arange(400) * 0.5 + 0.25
@@ -64,11 +72,12 @@ Example: open a library and run each model ::
 """
 
 from .closures import FlowClosures
+from .column import column_layer
 from .exact import dam_break_front, mangeney_dam_break
 from .segregation import segregation_layer
 from .shallow import shallow_layer
 from .uniform import fit_relaxation, linear_relaxation_time, switch_prediction, uniform_layer
 
-__all__ = ["FlowClosures", "uniform_layer", "switch_prediction", "fit_relaxation",
+__all__ = ["FlowClosures", "uniform_layer", "column_layer", "switch_prediction", "fit_relaxation",
            "linear_relaxation_time", "shallow_layer", "segregation_layer",
            "mangeney_dam_break", "dam_break_front"]

@@ -6,7 +6,10 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   at theta1 restarted from its ``final_state.npz`` at theta2 (``granflow simulate --from``),
   with tracer heights recorded for the self-diffusivity.  Compared with the uniform-layer ODE
   (:func:`granflow.continuum.switch_prediction`) started from the parent's h and u_bar: the new
-  steady u_bar and the e-folding time of the transient (the same exponential fit on both).
+  steady u_bar and the e-folding time of the transient (the same exponential fit on both);
+  and with the depth-resolved column of :mod:`granflow.continuum.column` (the same friction
+  law as a local rheology: the profile has to adjust by shear, 1.28x the ODE's linear
+  e-folding time; ``column_*`` fields).
 * **Long chute** (:func:`build_long_chute`, :func:`run_long_chute`, :func:`compare_long_chute`):
   steady states of small periodic boxes on the same rough base tiled along x (a few tiles of a
   thicker flow make a bump), run with x-resolved depth-integrated coarse-graining
@@ -190,6 +193,19 @@ def compare_switch(lib, parent_dir, child_dir, *, allow_unidentified=True, extra
                       if math.isfinite(out.get("tau", math.nan)) else math.nan)
     out["pass_u_steady"] = bool(abs(out["err_u_steady"]) <= TOL_STEADY_U)
     out["pass_tau"] = bool(abs(out["err_tau"]) <= TOL_TAU)
+    # the same closures as a depth-resolved column (granflow.continuum.column): same h, u0 and
+    # ensemble; its steady state is the ODE's, its transient has the profile to adjust
+    col = switch_prediction(lib, h=h_ode, u0=m["u0"], theta=m["theta2"], t_end=t_end,
+                            allow_unidentified=allow_unidentified, extrapolate=True,
+                            n_ensemble=n_ensemble, fit_t_max=t_end, model="column")
+    gc = col.sel(stat="value")
+    out.update(column_tau=float(gc.tau), column_tau_std=float(col.tau.sel(stat="std")),
+               column_tau_linear=float(gc.tau_linear), column_u=gc.u_bar.values.tolist(),
+               column_u_steady=float(gc.u_steady),
+               column_n_ensemble=int(col.attrs["n_ensemble"]))
+    out["err_tau_column"] = (out["column_tau"] / out["tau"] - 1.0
+                             if math.isfinite(out.get("tau", math.nan)) else math.nan)
+    out["pass_tau_column"] = bool(abs(out["err_tau_column"]) <= TOL_TAU)
     return out
 
 
@@ -744,6 +760,9 @@ def plot_all(res: dict, figures) -> list:
                     label="particles (u_mean, scaled)")
             ax.fill_between(s["ode_t"], s["ode_u_low"], s["ode_u_high"], color="C0", alpha=0.3)
             ax.plot(s["ode_t"], s["ode_u"], color="C0", label="ODE (library)")
+            if "column_u" in s:
+                ax.plot(s["ode_t"], s["column_u"], color="C3", ls="--",
+                        label="column (same closures)")
             if math.isfinite(s["u_steady"]):
                 ax.axhline(s["u_steady"], color="k", ls=":", lw=0.8)
             ax.set_title(f"H={s['H']:g}: {s['theta1']:g} -> {s['theta2']:g} deg", fontsize=8)
@@ -892,9 +911,11 @@ def format_tables(res: dict) -> str:
     """The comparison tables as plain text (the report's must-show tables)."""
     lines = ["closure status: " + ", ".join(f"{k} {'/'.join(v)}"
                                            for k, v in res["closure_status"].items()), "",
-             "theta1 -> theta2 switches (particle run vs uniform-layer ODE)",
+             "theta1 -> theta2 switches (particle run vs uniform-layer ODE and depth-resolved "
+             "column)",
              f"{'H':>4} {'th1':>5} {'th2':>5} {'state':>9} {'u_part':>7} {'u_ODE':>13} {'err':>7}"
-             f" {'tau_part':>12} {'tau_ODE':>12} {'err':>7} {'a0_part':>8} {'a0_ODE':>8}"]
+             f" {'tau_part':>12} {'tau_ODE':>12} {'err':>7} {'tau_column':>12} {'err':>7}"
+             f" {'a0_part':>8} {'a0_ODE':>8}"]
     for s in res["switches"]:
         if "error" in s:
             lines.append(f"  {s['child']}: {s['error']}")
@@ -904,6 +925,8 @@ def format_tables(res: dict) -> str:
             f"{s['u_steady']:7.3f} {s['ode_u_steady']:6.3f}+-{s['ode_u_steady_std']:5.3f} "
             f"{s['err_u_steady']:+7.1%} {s.get('tau', math.nan):6.1f}+-{s.get('tau_stderr', math.nan):4.1f}"
             f" {s['ode_tau']:6.1f}+-{s['ode_tau_std']:4.1f} {s['err_tau']:+7.1%}"
+            f" {s.get('column_tau', math.nan):6.1f}+-{s.get('column_tau_std', math.nan):4.1f}"
+            f" {s.get('err_tau_column', math.nan):+7.1%}"
             f" {s.get('accel0', math.nan):+8.4f} {s.get('ode_accel0', math.nan):+8.4f}"
             + ("  (extrapolated)" if s.get("extrapolated") else ""))
     lc = res.get("long_chute")

@@ -179,11 +179,25 @@ def fit_relaxation(t, u, u0: float | None = None, *, t_max: float | None = None)
             "rms": float(np.sqrt(np.mean(resid ** 2))), "n": int(t.size)}
 
 
+def _uniform_model():
+    return uniform_layer, EQ
+
+
+def _column_model():
+    from .column import EQ as COLUMN_EQ, column_layer
+
+    return column_layer, COLUMN_EQ
+
+
+#: the layer models :func:`switch_prediction` runs (name -> (solver, equation))
+_MODELS = {"uniform": _uniform_model, "column": _column_model}
+
+
 def switch_prediction(lib_or_closures, h: float, u0: float, theta: float, t_end: float, *,
                       lam=None, contact_law=None, allow_unidentified: bool = False,
                       extrapolate: bool = False, uncertainty: bool = True,
                       n_ensemble: int | None = 100, n_out: int = 401,
-                      fit_t_max: float | None = None) -> xr.Dataset:
+                      fit_t_max: float | None = None, model: str = "uniform") -> xr.Dataset:
     """Prediction for a steady layer (height h, velocity u0) switched to inclination ``theta``.
 
     ``lib_or_closures``: a closure library (Dataset) or a :class:`FlowClosures` (its theta is
@@ -193,7 +207,13 @@ def switch_prediction(lib_or_closures, h: float, u0: float, theta: float, t_end:
     time of the exponential fit, :func:`fit_relaxation`, to the ODE solution over
     [0, ``fit_t_max``]) and ``tau_linear(stat)`` with ``stat`` = value (central parameters),
     std, low, high (16th/84th percentiles over the ensemble; NaN without ``uncertainty``).
+    ``model``: ``"uniform"`` (the ODE, :func:`uniform_layer`) or ``"column"`` (the
+    depth-resolved column of :mod:`granflow.continuum.column`, same closures, started from a
+    Bagnold profile with depth average ``u0``).
     """
+    if model not in _MODELS:
+        raise ValueError(f"model = {model!r} is out of range: allowed {sorted(_MODELS)}")
+    layer, equation = _MODELS[model]()
     if isinstance(lib_or_closures, FlowClosures):
         central = lib_or_closures.at(theta)
     else:
@@ -210,7 +230,7 @@ def switch_prediction(lib_or_closures, h: float, u0: float, theta: float, t_end:
     stalled = 0
     for k, c in enumerate(members):
         try:
-            ds = uniform_layer(c, h, u0, t_end, n_out=n_out)
+            ds = layer(c, h, u0, t_end, n_out=n_out)
         except RuntimeError:
             if k == 0:
                 raise
@@ -242,23 +262,28 @@ def switch_prediction(lib_or_closures, h: float, u0: float, theta: float, t_end:
     stat = ["value", "std", "low", "high"]
     out = xr.Dataset(
         {"u_bar": (("stat", "t"), stats(curves), U.cf(U.VELOCITY, "depth-averaged velocity "
-                                                       "u_bar predicted by the uniform-layer ODE")),
+                                                       f"u_bar predicted by the {model} model")),
          "u_steady": ("stat", stats(u_st), U.cf(U.VELOCITY, "predicted steady velocity")),
          "tau": ("stat", stats(taus), U.cf(U.TIME, "predicted e-folding time (exponential fit "
-                                                   "to the ODE solution)")),
-         "tau_linear": ("stat", stats(tl), U.cf(U.TIME, "e-folding time of the linearised ODE"))},
+                                                   f"to the {model} model's u_bar)")),
+         "tau_linear": ("stat", stats(tl), U.cf(U.TIME, f"e-folding time of the linearised "
+                                                        f"{model} model"))},
         coords={"t": ("t", np.linspace(0.0, float(t_end), int(n_out)),
                       U.cf(U.TIME, "time since the change of inclination")),
                 "stat": ("stat", np.array(stat, dtype=object),
                          {"long_name": "statistic: value (central parameters), std, low/high "
                                        "(16th/84th percentile over the closure ensemble)"})})
-    out.attrs.update(central.attrs(), h=h, u0=u0, froude0=F0, equation=EQ,
+    out.attrs.update(central.attrs(), h=h, u0=u0, froude0=F0, equation=equation,
+                     continuum_layer_model=model,
                      n_ensemble=len(members) - 1 - stalled,
                      n_ensemble_dropped=int(getattr(ens, "ensemble_dropped", 0)) + stalled,
                      extrapolate=int(bool(extrapolate)),
-                     uncertainty_method="ODE solved for every stored parameter sample of the "
-                                        "friction closure (joint hstop/flow-rule ensemble)")
-    return finish(out, "uniform_layer_prediction", "uniform-layer prediction after a change of "
-                  "inclination", "Depth-averaged velocity after a change of inclination from "
-                  "the uniform-layer ODE of Weinhart et al. 2012 Eq. 34 with the closure "
-                  "library's friction law, with its spread over the library's parameter ensemble.")
+                     uncertainty_method=f"{model} model solved for every stored parameter "
+                                        "sample of the friction closure (joint hstop/flow-rule "
+                                        "ensemble)")
+    what = ("the uniform-layer ODE of Weinhart et al. 2012 Eq. 34" if model == "uniform" else
+            "a depth-resolved column whose local friction is the library's mu(h, F)")
+    return finish(out, f"{model}_layer_prediction", f"{model}-layer prediction after a change "
+                  "of inclination", "Depth-averaged velocity after a change of inclination from "
+                  f"{what} with the closure library's friction law, with its spread over the "
+                  "library's parameter ensemble.")
