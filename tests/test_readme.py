@@ -77,6 +77,9 @@ README_COMMANDS = {
     ".venv/bin/python -m pytest -m slow":
         ("tests/test_readme.py::test_markers_select_the_slow_and_cluster_tests",
          "collection only: the marker selects the slow tests"),
+    ".venv/bin/python -m pytest -m slow tests/test_continuum_slow.py -k switch":
+        ("tests/test_continuum_slow.py::test_switch_efolding_time_of_the_column_within_25_percent",
+         "pytest -m slow (needs the continuum-soft campaign; skipped without it)"),
     "pkill -x granflow-sim":
         ("tests/test_cli.py::test_running_simulation_has_a_name_and_a_pid_file_and_stops_cleanly",
          "pgrep -x finds the run by that name"),
