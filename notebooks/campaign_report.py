@@ -697,7 +697,9 @@ else:
 # ### 1. Uniform layer after a change of inclination (Eq. 34 as an ODE)
 # du/dt = g cos(theta) (tan(theta) - mu(h, F)): the steady runs of this campaign switched by
 # +-1.5 degrees, with the 16-84 % band over the friction closure's ensemble (dotted: outside the
-# fitted (h, F) region, extrapolated).  With particle switch runs: their u(t) as points.
+# fitted (h, F) region, extrapolated); thin dashed: the same closures as a depth-resolved column
+# (`model="column"`, granflow.continuum.column: the profile adjusts by shear, 1.28x the ODE's
+# linear e-folding time).  With particle switch runs: the table below.
 
 # %%
 steady_runs = table[(table["state"] == "steady") & (table["kind"] == "chute")
@@ -722,6 +724,8 @@ for ax, (_, r) in zip(axes[0], steady_runs.iterrows()):
                         color=colour, alpha=0.25)
         ax.plot(pred.t, pred.u_bar.sel(stat="value"), ls, color=colour,
                 label=f"-> {r['theta'] + dth:g} deg")
+        col = switch_prediction(lib, extrapolate=True, uncertainty=False, model="column", **kw)
+        ax.plot(col.t, col.u_bar.sel(stat="value"), "--", lw=0.8, color=colour)
     ax.set_title(f"H = {r['H']:g}, from {r['theta']:g} deg", fontsize=8)
     ax.set_xlabel("t since switch")
     ax.legend(fontsize=6)
@@ -735,7 +739,9 @@ if comparison is not None and comparison["switches"]:
     sw = pd.DataFrame([{k: s.get(k) for k in ("H", "theta1", "theta2", "child_state", "u_steady",
                                                "ode_u_steady", "ode_u_steady_std",
                                                "err_u_steady", "tau", "tau_stderr", "ode_tau",
-                                               "ode_tau_std", "err_tau", "extrapolated")}
+                                               "ode_tau_std", "err_tau", "column_tau",
+                                               "column_tau_std", "err_tau_column",
+                                               "extrapolated")}
                        for s in comparison["switches"] if "error" not in s])
     display(sw)
 
