@@ -9,7 +9,8 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   steady u_bar and the e-folding time of the transient (the same exponential fit on both);
   and with the depth-resolved column of :mod:`granflow.continuum.column` (the same friction
   law as a local rheology: the profile has to adjust by shear, 1.28x the ODE's linear
-  e-folding time; ``column_*`` fields).
+  e-folding time; ``column_*`` fields).  ``tau_dilation``: the e-folding time of the layer's
+  centre of mass (slope-normal potential energy) after the switch, against u_bar's ``tau``.
 * **Long chute** (:func:`build_long_chute`, :func:`run_long_chute`, :func:`compare_long_chute`):
   steady states of small periodic boxes on the same rough base tiled along x (a few tiles of a
   thicker flow make a bump), run with x-resolved depth-integrated coarse-graining
@@ -121,8 +122,9 @@ def switch_measurement(parent_dir, child_dir) -> dict:
     # bin to 1 time unit (u_mean fluctuates on the collision scale)
     edges = np.arange(0.0, t[-1] + 1.0, 1.0)
     idx = np.digitize(t, edges) - 1
-    tb = np.array([t[idx == k].mean() for k in range(len(edges)) if np.any(idx == k)])
-    ub = np.array([u[idx == k].mean() for k in range(len(edges)) if np.any(idx == k)])
+    bins = [k for k in range(len(edges)) if np.any(idx == k)]
+    tb = np.array([t[idx == k].mean() for k in bins])
+    ub = np.array([u[idx == k].mean() for k in bins])
     pu = xr.open_dataset(Path(parent_dir) / "series.nc")["u_mean"].values
     u0_mean = float(np.mean(pu[-int(0.2 * len(pu)):]))     # parent's steady u_mean
     out = {"parent": os.fspath(parent_dir), "child": os.fspath(child_dir),
@@ -142,6 +144,19 @@ def switch_measurement(parent_dir, child_dir) -> dict:
                    fit_rms=fit["rms"])
     except (ValueError, RuntimeError) as exc:
         out.update(tau=math.nan, tau_stderr=math.nan, fit_error=str(exc))
+    # dilation: the slope-normal potential energy sum m g cos(theta) z is the layer's centre of
+    # mass times a constant after the switch; its e-folding time against u_bar's says whether
+    # the density adjusts on the transient's time scale (a constant-density model cannot)
+    out["tau_dilation"] = out["tau_dilation_stderr"] = math.nan
+    if "e_grav" in series:
+        eg = series["e_grav"].values
+        gb = np.array([eg[idx == k].mean() for k in bins])
+        try:
+            fit = fit_relaxation(tb, gb)
+            out.update(tau_dilation=fit["tau"], tau_dilation_stderr=fit["tau_stderr"],
+                       dilation_rel=float(fit["u_inf"] / gb[0] - 1.0))
+        except (ValueError, RuntimeError):
+            pass
     return out
 
 
@@ -915,7 +930,7 @@ def format_tables(res: dict) -> str:
              "column)",
              f"{'H':>4} {'th1':>5} {'th2':>5} {'state':>9} {'u_part':>7} {'u_ODE':>13} {'err':>7}"
              f" {'tau_part':>12} {'tau_ODE':>12} {'err':>7} {'tau_column':>12} {'err':>7}"
-             f" {'a0_part':>8} {'a0_ODE':>8}"]
+             f" {'tau_dilation':>13} {'a0_part':>8} {'a0_ODE':>8}"]
     for s in res["switches"]:
         if "error" in s:
             lines.append(f"  {s['child']}: {s['error']}")
@@ -927,6 +942,7 @@ def format_tables(res: dict) -> str:
             f" {s['ode_tau']:6.1f}+-{s['ode_tau_std']:4.1f} {s['err_tau']:+7.1%}"
             f" {s.get('column_tau', math.nan):6.1f}+-{s.get('column_tau_std', math.nan):4.1f}"
             f" {s.get('err_tau_column', math.nan):+7.1%}"
+            f" {s.get('tau_dilation', math.nan):6.1f}+-{s.get('tau_dilation_stderr', math.nan):5.1f}"
             f" {s.get('accel0', math.nan):+8.4f} {s.get('ode_accel0', math.nan):+8.4f}"
             + ("  (extrapolated)" if s.get("extrapolated") else ""))
     lc = res.get("long_chute")
