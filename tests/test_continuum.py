@@ -612,6 +612,10 @@ def test_uniform_layer_stops_with_an_error_on_a_law_that_jumps_inside_the_flow()
                         K=1.0, alpha=lambda h: np.ones(np.shape(h)))
     with pytest.raises(RuntimeError, match="stalled"):
         uniform_layer(jump, 6.0, 0.3, 100.0)
+    from granflow.continuum.column import column_layer
+
+    with pytest.raises(RuntimeError, match="column model stalled"):
+        column_layer(jump, 6.0, 0.3, 100.0, n_z=16)
 
 
 def test_ensemble_members_that_are_no_friction_law_are_dropped():

@@ -69,6 +69,11 @@ EQ = ("local friction-law column: du/dt = g sin(theta) + d/dz[g cos(theta) (h - 
       "mu(h, F_loc)], F_loc = (2/5) h (du/dz) / sqrt(g cos(theta) (h - z)); no slip at z = 0, "
       "free surface at z = h")
 
+#: right-hand-side evaluations after which the column is declared stalled: the library
+#: ensembles of the switch comparisons need at most ~10,000 (measured 2026-11-28, every fifth
+#: member of continuum-soft's friction ensemble at the five switch states)
+MAX_RHS_CALLS = 50_000
+
 #: shear-rate scale of the yield-stress regularisation, relative to u0 / h: friction is
 #: mu * tanh(shear / (EPS_SHEAR * |u0| / h)) (below it the column creeps instead of arresting)
 EPS_SHEAR = 1e-4
@@ -159,7 +164,15 @@ def column_layer(closures: FlowClosures, h: float, u0: float, t_end: float, *,
         tau[:-1] = lever[:-1] * mu * np.tanh(shear[:-1] / eps)   # the surface face: tau = 0
         return tau
 
+    calls = [0]
+
     def rhs(t, u):
+        # as in the uniform-layer ODE: a friction law that jumps inside the flow makes BDF
+        # chatter with ever smaller steps; stop with an error instead of running without end
+        calls[0] += 1
+        if calls[0] > MAX_RHS_CALLS:
+            raise RuntimeError(f"column model stalled ({MAX_RHS_CALLS} evaluations before "
+                               f"t = {t:.4g} of {t_end:g}): mu(h, F) jumps inside the flow")
         tau = face_stress(u)
         return gs + (tau[1:] - tau[:-1]) / dz
 
