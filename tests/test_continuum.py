@@ -702,3 +702,12 @@ def test_switch_measurement_recovers_the_velocity_and_dilation_time_scales(tmp_p
     assert m["tau"] == pytest.approx(30.0, rel=0.05)
     assert m["tau_dilation"] == pytest.approx(45.0, rel=0.05)
     assert m["dilation_rel"] == pytest.approx(0.04, rel=0.05)
+    # a centre of mass that does not move: no e-folding time is reported, and it says why
+    flat = xr.Dataset({"u_mean": ("t", u), "e_grav": ("t", 1000.0 + 0.5 * rng.standard_normal(
+        t.size))}, coords={"t": t})
+    (dirs["child"] / "series.nc").unlink()
+    flat.to_netcdf(dirs["child"] / "series.nc")
+    m = switch_measurement(dirs["parent"], dirs["child"])
+    assert math.isnan(m["tau_dilation"]) and m["dilation_fit"].startswith(("unidentified",
+                                                                           "failed"))
+    assert m["tau"] == pytest.approx(30.0, rel=0.05)

@@ -153,10 +153,14 @@ def switch_measurement(parent_dir, child_dir) -> dict:
         gb = np.array([eg[idx == k].mean() for k in bins])
         try:
             fit = fit_relaxation(tb, gb)
-            out.update(tau_dilation=fit["tau"], tau_dilation_stderr=fit["tau_stderr"],
-                       dilation_rel=float(fit["u_inf"] / gb[0] - 1.0))
-        except (ValueError, RuntimeError):
-            pass
+            if 0 < fit["tau"] < t[-1] and fit["tau_stderr"] < 0.5 * fit["tau"]:
+                out.update(tau_dilation=fit["tau"], tau_dilation_stderr=fit["tau_stderr"],
+                           dilation_rel=float(fit["u_inf"] / gb[0] - 1.0))
+            else:   # no relaxation the data identify (a flat or drifting centre of mass)
+                out["dilation_fit"] = (f"unidentified: tau {fit['tau']:.4g} +- "
+                                       f"{fit['tau_stderr']:.2g} over a run of {t[-1]:.4g}")
+        except (ValueError, RuntimeError) as exc:
+            out["dilation_fit"] = f"failed: {exc}"
     return out
 
 
