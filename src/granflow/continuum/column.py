@@ -45,9 +45,9 @@ arise.  A layer that stops (tan(theta) below mu(h, 0)) creeps through the regula
 yield stress rather than arresting.
 
 Against particle runs it was not fitted on (``tests/test_continuum_slow.py``, continuum-soft
-switch runs, measured 2026-11-28): e-folding times 33.3, 33.6, 22.1, 14.1 against the particles'
-47.9, 42.8, 27.1, 13.2 (H = 10 up, H = 10 down, H = 8 up, H = 6 down), where the ODE gives
-26.7, 27.2, 17.8, 11.3: errors -31, -22, -18, +7 % against -44, -37, -34, -14 %.
+switch runs, measured 2026-11-28): e-folding times 33.3, 33.6, 22.1, 15.2 against the particles'
+47.9, 42.8, 27.1, 28.3 (H = 10 up, H = 10 down, H = 8 up, H = 6 up), where the ODE gives
+26.7, 27.2, 17.8, 12.2: errors -31, -22, -18, -47 % against -44, -37, -34, -57 %.
 """
 
 from __future__ import annotations

@@ -110,6 +110,16 @@ def _simulate_with_tracers(params, out_dir, tracer_interval, threads, **kw) -> d
     return res
 
 
+def _unidentified_relaxation(fit: dict, t_run: float) -> str:
+    """Why an exponential fit (:func:`granflow.continuum.fit_relaxation`) identifies no
+    e-folding time ('' when it does): tau must lie inside the run and its stderr below half of
+    it (noise that hides the approach gives tau +- more than tau)."""
+    tau, se = fit["tau"], fit["tau_stderr"]
+    if 0 < tau < t_run and se < 0.5 * tau:
+        return ""
+    return f"unidentified: tau {tau:.4g} +- {se:.2g} over a run of {t_run:.4g}"
+
+
 def switch_measurement(parent_dir, child_dir) -> dict:
     """Particle-run numbers of one switch: parent h, u_bar; child steady u_bar (if steady),
     the u_mean(t) transient and its exponential fit."""
@@ -140,8 +150,13 @@ def switch_measurement(parent_dir, child_dir) -> dict:
     out["accel0"] = float(np.polyfit(t[early], u[early], 1)[0]) if early.sum() > 3 else math.nan
     try:
         fit = fit_relaxation(tb, ub, u0_mean)
-        out.update(tau=fit["tau"], tau_stderr=fit["tau_stderr"], fit_u_inf=fit["u_inf"],
-                   fit_rms=fit["rms"])
+        out.update(tau_fitted=fit["tau"], tau_fitted_stderr=fit["tau_stderr"],
+                   fit_u_inf=fit["u_inf"], fit_rms=fit["rms"])
+        why = _unidentified_relaxation(fit, t[-1])
+        if why:   # not a result: the comparison has no particle e-folding time
+            out.update(tau=math.nan, tau_stderr=math.nan, fit_error=why)
+        else:
+            out.update(tau=fit["tau"], tau_stderr=fit["tau_stderr"])
     except (ValueError, RuntimeError) as exc:
         out.update(tau=math.nan, tau_stderr=math.nan, fit_error=str(exc))
     # dilation: the slope-normal potential energy sum m g cos(theta) z is the layer's centre of
@@ -153,12 +168,12 @@ def switch_measurement(parent_dir, child_dir) -> dict:
         gb = np.array([eg[idx == k].mean() for k in bins])
         try:
             fit = fit_relaxation(tb, gb)
-            if 0 < fit["tau"] < t[-1] and fit["tau_stderr"] < 0.5 * fit["tau"]:
+            why = _unidentified_relaxation(fit, t[-1])
+            if why:   # no relaxation the data identify (a flat or drifting centre of mass)
+                out["dilation_fit"] = why
+            else:
                 out.update(tau_dilation=fit["tau"], tau_dilation_stderr=fit["tau_stderr"],
                            dilation_rel=float(fit["u_inf"] / gb[0] - 1.0))
-            else:   # no relaxation the data identify (a flat or drifting centre of mass)
-                out["dilation_fit"] = (f"unidentified: tau {fit['tau']:.4g} +- "
-                                       f"{fit['tau_stderr']:.2g} over a run of {t[-1]:.4g}")
         except (ValueError, RuntimeError) as exc:
             out["dilation_fit"] = f"failed: {exc}"
     return out
