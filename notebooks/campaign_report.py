@@ -724,8 +724,13 @@ for ax, (_, r) in zip(axes[0], steady_runs.iterrows()):
                         color=colour, alpha=0.25)
         ax.plot(pred.t, pred.u_bar.sel(stat="value"), ls, color=colour,
                 label=f"-> {r['theta'] + dth:g} deg")
-        col = switch_prediction(lib, extrapolate=True, uncertainty=False, model="column", **kw)
-        ax.plot(col.t, col.u_bar.sel(stat="value"), "--", lw=0.8, color=colour)
+        try:
+            col = switch_prediction(lib, extrapolate=True, uncertainty=False, model="column",
+                                    **kw)
+            ax.plot(col.t, col.u_bar.sel(stat="value"), "--", lw=0.8, color=colour)
+        except (ValueError, RuntimeError) as err:   # e.g. a stalled column: say so, go on
+            ax.text(0.02, 0.1, textwrap.fill(f"column: {err}", 50), fontsize=5,
+                    transform=ax.transAxes)
     ax.set_title(f"H = {r['H']:g}, from {r['theta']:g} deg", fontsize=8)
     ax.set_xlabel("t since switch")
     ax.legend(fontsize=6)
