@@ -63,7 +63,7 @@ from scipy.integrate import solve_ivp
 from .. import units as U
 from .closures import FlowClosures
 from .output import finish
-from .uniform import _check_inputs, linear_relaxation_time
+from .uniform import _check_inputs, linear_relaxation_time, stall_guard
 
 EQ = ("local friction-law column: du/dt = g sin(theta) + d/dz[g cos(theta) (h - z) "
       "mu(h, F_loc)], F_loc = (2/5) h (du/dz) / sqrt(g cos(theta) (h - z)); no slip at z = 0, "
@@ -164,15 +164,10 @@ def column_layer(closures: FlowClosures, h: float, u0: float, t_end: float, *,
         tau[:-1] = lever[:-1] * mu * np.tanh(shear[:-1] / eps)   # the surface face: tau = 0
         return tau
 
-    calls = [0]
+    stalled = stall_guard("column model", MAX_RHS_CALLS, t_end)
 
     def rhs(t, u):
-        # as in the uniform-layer ODE: a friction law that jumps inside the flow makes BDF
-        # chatter with ever smaller steps; stop with an error instead of running without end
-        calls[0] += 1
-        if calls[0] > MAX_RHS_CALLS:
-            raise RuntimeError(f"column model stalled ({MAX_RHS_CALLS} evaluations before "
-                               f"t = {t:.4g} of {t_end:g}): mu(h, F) jumps inside the flow")
+        stalled(t)
         tau = face_stress(u)
         return gs + (tau[1:] - tau[:-1]) / dz
 

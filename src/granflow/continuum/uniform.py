@@ -54,6 +54,21 @@ MAX_RHS_CALLS = 200_000
 EQ = "Weinhart et al. 2012 Eq. (34) for a uniform layer: du/dt = g cos(theta) (tan(theta) - mu(h, F))"
 
 
+def stall_guard(model: str, max_calls: int, t_end: float):
+    """A counter for a right-hand side: call it with t on every evaluation; past ``max_calls``
+    it raises RuntimeError.  A friction law with a jump inside the flow makes an implicit or
+    adaptive solver chatter at the jump with ever smaller steps: stop with an error instead of
+    running without end."""
+    calls = [0]
+
+    def count(t):
+        calls[0] += 1
+        if calls[0] > max_calls:
+            raise RuntimeError(f"{model} stalled ({max_calls} evaluations before t = {t:.4g} "
+                               f"of {t_end:g}): mu(h, F) jumps inside the flow")
+    return count
+
+
 def _check_inputs(h, u0, t_end):
     for name, v, lo in (("h", h, 0.0), ("t_end", t_end, 0.0)):
         if not (math.isfinite(v) and v > lo):
@@ -74,15 +89,10 @@ def uniform_layer(closures: FlowClosures, h: float, u0: float, t_end: float, *,
     _check_inputs(h, u0, t_end)
     gc = closures.g_cos
 
-    calls = [0]
+    stalled = stall_guard("uniform-layer ODE", MAX_RHS_CALLS, t_end)
 
     def rhs(t, y):
-        # a friction law with a jump inside the flow makes the solver chatter at the jump
-        # with ever smaller steps: stop with an error instead of running without end
-        calls[0] += 1
-        if calls[0] > MAX_RHS_CALLS:
-            raise RuntimeError(f"uniform-layer ODE stalled ({MAX_RHS_CALLS} evaluations before "
-                               f"t = {t:.4g} of {t_end:g}): mu(h, F) jumps inside the flow")
+        stalled(t)
         return [float(closures.acceleration(h, y[0]))]
 
     mu0 = float(closures.mu(h, 0.0))
