@@ -9,8 +9,9 @@ and prints per stage the best round's time per step, per contact and per near pa
 * ``compact``: the touching pairs to the front of the block's scratch list;
 * ``gather``: the chunk's pair data into the work row (``_gather_linear``);
 * ``maths``: the vectorised linear law (``_linear_maths``);
-* ``scatter``: results back to the compact rows and the history (``_scatter_linear``);
-* ``push``: the rows added to the particles' forces and torques.
+* ``scatter``: results back to the history and, from the work row, added to the particles'
+  forces and torques (``_scatter_linear`` as a step that keeps no rows calls it; before
+  2026-11-28 the rows were written and a separate ``push`` stage added them).
 
 The replay leaves out the opened contacts (none in a steady dense flow between two steps) and
 the per-block bookkeeping; its sum is ~90 % of the profile's pair pass
@@ -37,7 +38,7 @@ from bench_engine_profile import CLOCK_MONOTONIC, _clock_gettime  # noqa: E402
 
 from granflow.engine.lib import kernels as K  # noqa: E402
 
-STAGES = ("scan", "compact", "gather", "maths", "scatter", "push")
+STAGES = ("scan", "compact", "gather", "maths", "scatter")
 
 
 @njit
@@ -93,23 +94,11 @@ def replay(reps, pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, pi, pj,
                 K._linear_maths(work, 0, m, dt, True)
                 tc = _now(buf)
                 K._scatter_linear(work, 0, scratch, q0, m, True, crow, cext, ridx, pstate,
-                                  hist_t, hflag, 0)
+                                  hist_t, hflag, k0, False, True, pi, pj, force, torque, 0.0)
                 td = _now(buf)
                 acc[2] += tb - ta
                 acc[3] += tc - tb
                 acc[4] += td - tc
-            t3 = _now(buf)
-            for q in range(np.uint64(k0), np.uint64(nc)):
-                p = scratch[q]
-                if pstate[p] == K.CONTACT:
-                    i = pi[p]
-                    j = pj[p]
-                    for c in range(3):
-                        force[i, c] += crow[q, c]
-                        force[j, c] -= crow[q, c]
-                        torque[i, c] += crow[q, 3 + c]
-                        torque[j, c] += crow[q, 6 + c]
-            acc[5] += _now(buf) - t3
             ncont += nc - k0
     return ncont
 

@@ -116,7 +116,7 @@ class ParticleSystem:
         self._coef_src = None
         self._slots_override = None
         # per-thread work rows of the vectorised contact kernel
-        self._work = np.zeros((numba.config.NUMBA_NUM_THREADS, K.WORK_SIZE))
+        self._work = K.work_rows(numba.config.NUMBA_NUM_THREADS)
 
     def set_particles(self, pos, diameter, density=6.0 / math.pi, ptype=0, fixed=False):
         """Replace all particles. Mobile particles must come before fixed ones."""

@@ -401,18 +401,34 @@ def _pair_contact(p, q, pos, vel, omega, vel_h, omega_h, radius, ptype, box, pi,
 # of the scalar path (the elastic energy is one expression in both, so that the multiply-add
 # fusion is the same; tests/test_engine_threads.py checks it).
 #: Contacts per chunk.  Each contact is computed on its own, so the chunk size changes no
-#: number, only the speed: measured on the benchmark chute at one thread (2026-11-26), pair pass
-#: 176-178 us per step with CHUNK = 128, 250 with 64 or 32, 150-151 with 256, 320, 384 or 512
-#: (why the smaller chunks cost so much more is not understood: with 256 most blocks of
-#: PAIR_BLOCK near pairs are one chunk, with 128 two or more).  256: the work row
-#: (NWORK x 259 doubles, 104 KB per thread) stays well inside the L2.
+#: number, only the speed.  What mattered was the rows' alignment, not the chunk: with rows
+#: CHUNK + 3 doubles apart (rows off the 64-byte cache lines, the vector loads straddling them)
+#: the benchmark chute's step at one thread took 224 us with CHUNK = 64, 171-176 with 128 and
+#: 151-156 with 256 (Zen 5, 2026-11-28; the same pattern on the Xeon host 2026-11-26); with
+#: rows a multiple of 8 doubles apart in a 64-byte aligned array (:func:`work_rows`) 145-150
+#: with 32, 64, 128 or 256.  256: most blocks of PAIR_BLOCK near pairs are one chunk, and the
+#: work row (NWORK x 264 doubles, 106 KB per thread) stays inside the L2.
 CHUNK = 256
-CHUNK_STRIDE = CHUNK + 3   # not a power of two: the work rows do not share cache sets
+CHUNK_STRIDE = CHUNK + 8   # a whole number of cache lines, not a power of two
+WORK_ALIGN = 64            # bytes: each thread's row starts on a cache line
 (W_DX, W_DY, W_DZ, W_RI, W_RJ, W_M, W_KN, W_GN, W_KT, W_GT, W_MU, W_VI, W_VJ, W_WI, W_WJ,
  W_DVH, W_WHI, W_WHJ, W_S) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 14, 17, 20, 23, 26, 29, 32)
 (W_F, W_TI, W_TJ, W_EEL, W_DELTA, W_FN, W_SN) = (35, 38, 41, 44, 45, 46, 47)
 NWORK = 50
 WORK_SIZE = NWORK * CHUNK_STRIDE
+
+
+def work_rows(nthreads):
+    """Zeroed per-thread work rows (``nthreads x WORK_SIZE`` doubles) whose rows start on
+    WORK_ALIGN-byte boundaries: with CHUNK_STRIDE a multiple of 8 doubles every variable's
+    row of a chunk then starts on a cache line, so the maths loop's vector loads do not
+    straddle lines (numpy's allocator only guarantees 16 bytes)."""
+    per = WORK_ALIGN // 8
+    buf = np.zeros(nthreads * WORK_SIZE + per)
+    shift = (-buf.ctypes.data % WORK_ALIGN) // 8
+    rows = buf[shift:shift + nthreads * WORK_SIZE].reshape(nthreads, WORK_SIZE)
+    assert rows.ctypes.data % WORK_ALIGN == 0 and (WORK_SIZE * 8) % WORK_ALIGN == 0
+    return rows
 
 
 @njit(cache=True)
@@ -585,24 +601,43 @@ def _linear_maths(work, tid, m, dt, update_history):
 
 @njit(cache=True)
 def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx, pstate, hist_t,
-                    hflag, roff):
+                    hflag, roff, write_rows, push, pi, pj, force, torque, ov):
     """Results of a chunk back to the pairs: rows at ``q - roff`` (``roff`` = 0: the rows of
-    the pair list; the block's start: a block-local row buffer)."""
+    the pair list; the block's start: a block-local row buffer), unless ``write_rows`` is
+    False (rows nobody reads); ``push``: the contacts added to ``force`` and ``torque`` from
+    the work row, in pair order (what :func:`_pair_runs` does with the rows for the other
+    laws: the same additions in the same order, without writing and re-reading the rows).
+    Returns the largest overlap of the chunk's contacts and ``ov``."""
     w = work[tid]
     q0u = np.uint64(q0)
     r0u = np.uint64(q0 - roff)
     for k in range(np.uint64(m)):
         q = q0u + k
-        r = r0u + k
         p = scratch[q]
-        for c in range(9):
-            crow[r, c] = w[np.uint64((W_F + c) * CHUNK_STRIDE) + k]
         delta = w[np.uint64(W_DELTA * CHUNK_STRIDE) + k]
-        cext[r, 0] = w[np.uint64(W_EEL * CHUNK_STRIDE) + k]
-        cext[r, 1] = delta
-        cext[r, 2] = w[np.uint64(W_FN * CHUNK_STRIDE) + k]
+        if write_rows:
+            r = r0u + k
+            for c in range(9):
+                crow[r, c] = w[np.uint64((W_F + c) * CHUNK_STRIDE) + k]
+            cext[r, 0] = w[np.uint64(W_EEL * CHUNK_STRIDE) + k]
+            cext[r, 1] = delta
+            cext[r, 2] = w[np.uint64(W_FN * CHUNK_STRIDE) + k]
         ridx[p] = q
-        pstate[p] = CONTACT if delta != 0.0 else GRAZING
+        if delta != 0.0:
+            pstate[p] = CONTACT
+            if push:
+                i = pi[p]
+                j = pj[p]
+                for c in range(3):
+                    f = w[np.uint64((W_F + c) * CHUNK_STRIDE) + k]
+                    force[i, c] += f
+                    force[j, c] -= f
+                    torque[i, c] += w[np.uint64((W_TI + c) * CHUNK_STRIDE) + k]
+                    torque[j, c] += w[np.uint64((W_TJ + c) * CHUNK_STRIDE) + k]
+            if delta > ov:
+                ov = delta
+        else:
+            pstate[p] = GRAZING
         if update_history:
             sx = w[np.uint64(W_SN * CHUNK_STRIDE) + k]
             sy = w[np.uint64((W_SN + 1) * CHUNK_STRIDE) + k]
@@ -611,6 +646,7 @@ def _scatter_linear(work, tid, scratch, q0, m, update_history, crow, cext, ridx,
             hist_t[p, 1] = sy
             hist_t[p, 2] = sz
             hflag[p] = _has_spring(sx, sy, sz)
+    return ov
 
 
 @njit(cache=True, error_model="numpy", fastmath=CONTACT_FASTMATH)
@@ -670,15 +706,19 @@ def _pair_runs(s0, s1, pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, p
                                           omega_h, radius, ptype, box, pi, pj, mred, hist_t,
                                           hist_dmax, hflag, law_tab, coef, dt, update_history,
                                           rc, re, ridx, prel, pstate, False)
-            # contacts of the touching pairs (rows at q - roff)
+            # contacts of the touching pairs (rows at q - roff); the first run adds its
+            # contacts to the forces (linear law: straight from the work row, its block
+            # buffer rows not written; others: from the rows, below); largest overlap
+            ov = 0.0
             if all_linear:
                 for q0 in range(k0, nc, CHUNK):
                     m = min(CHUNK, nc - q0)
                     _gather_linear(work, tid, scratch, q0, m, pos, vel, omega, vel_h, omega_h,
                                    radius, ptype, box, pi, pj, mred, hist_t, coef)
                     _linear_maths(work, tid, m, dt, update_history)
-                    _scatter_linear(work, tid, scratch, q0, m, update_history, rc, re, ridx,
-                                    pstate, hist_t, hflag, roff)
+                    ov = _scatter_linear(work, tid, scratch, q0, m, update_history, rc, re,
+                                         ridx, pstate, hist_t, hflag, roff, not local,
+                                         slot == 0, pi, pj, force, torque, ov)
             else:
                 for q in range(k0, nc):
                     _pair_contact(np.int64(scratch[q]), q - roff, pos, vel, omega, vel_h,
@@ -687,22 +727,21 @@ def _pair_runs(s0, s1, pos, vel, omega, vel_h, omega_h, radius, ptype, Lx, Ly, p
                                   pstate, True)
                     if local:
                         ridx[scratch[q]] = q
-            # push the contacts (first run of blocks); largest overlap of the block
-            ov = 0.0
-            for q in range(np.uint64(k0), np.uint64(nc)):
-                p = scratch[q]
-                r = q - np.uint64(roff)
-                if pstate[p] == CONTACT:
-                    if slot == 0:
-                        i = pi[p]
-                        j = pj[p]
-                        for k in range(3):
-                            force[i, k] += rc[r, k]
-                            force[j, k] -= rc[r, k]
-                            torque[i, k] += rc[r, 3 + k]
-                            torque[j, k] += rc[r, 6 + k]
-                    if re[r, 1] > ov:
-                        ov = re[r, 1]
+                # push the contacts (first run of blocks); largest overlap of the block
+                for q in range(np.uint64(k0), np.uint64(nc)):
+                    p = scratch[q]
+                    r = q - np.uint64(roff)
+                    if pstate[p] == CONTACT:
+                        if slot == 0:
+                            i = pi[p]
+                            j = pj[p]
+                            for k in range(3):
+                                force[i, k] += rc[r, k]
+                                force[j, k] -= rc[r, k]
+                                torque[i, k] += rc[r, 3 + k]
+                                torque[j, k] += rc[r, 6 + k]
+                        if re[r, 1] > ov:
+                            ov = re[r, 1]
             blk_overlap[b] = ov
             blk_erel[b] = erel
             blk_nc[b] = nc - k0
