@@ -107,7 +107,7 @@ README_COMMANDS = {
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_sampling.py":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
-    ".venv/bin/python benchmarks/bench_engine_threads.py --steps 5000 --repeat 5":
+    ".venv/bin/python benchmarks/bench_engine_threads.py --repeat 3":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/hstop_fresh_falls.py --configfile config/reference-lambda-half.yaml --lam 0.5 --H 16 24 --base-species absolute --out results/fresh-lambda-half-absolute --jobs 2":
         ("tests/test_benchmark_tools.py::test_hstop_fresh_falls_brackets_a_known_curve_with_the_chosen_base",
