@@ -187,3 +187,22 @@ def test_fused_push_gives_every_particle_its_rows_in_pair_order(n, npair, nslots
                                  pstate, scratch, blk_nc, f, t):
                 break
     assert np.array_equal(f, ref_f) and np.array_equal(t, ref_t)
+
+
+@pytest.mark.parametrize("nthreads", [1, 2, 3, 8])
+def test_work_rows_start_on_cache_lines(nthreads):
+    """Every variable's row of every thread's work row starts on a 64-byte line (the maths
+    loop's vector loads must not straddle lines: 151-156 -> 144-148 us per step on the
+    benchmark chute, benchmarks/README.md), and the rows start zeroed and do not overlap."""
+    from granflow.engine.lib import kernels as K
+
+    assert (K.CHUNK_STRIDE * 8) % K.WORK_ALIGN == 0
+    w = K.work_rows(nthreads)
+    assert w.shape == (nthreads, K.WORK_SIZE) and w.flags.c_contiguous
+    assert not w.any()
+    for t in range(nthreads):
+        for var in range(K.NWORK):
+            assert w[t, var * K.CHUNK_STRIDE:].ctypes.data % K.WORK_ALIGN == 0
+    w[0, -1] = 1.0
+    assert w[1:].sum() == 0.0 if nthreads > 1 else True
+    assert _packing()._work.ctypes.data % K.WORK_ALIGN == 0
