@@ -84,14 +84,21 @@ def test_parameter_traded_against_an_active_bound_is_not_identified():
     assert r.param_status["delta1"] == "identified"
     assert r.params["delta1"] == pytest.approx(20.3, abs=0.3)
     assert r.status == "unidentified" and not r.ok
-    # brackets on Table 1's lambda = 1 curve: no bound active, nothing conditional
+    # brackets scattered (0.1 deg, fixed seed) about Table 1's lambda = 1 curve: no bound
+    # active, nothing conditional, A identified.  (Brackets centred exactly on the curve give
+    # every bootstrap refit the same parameters: stderr 0, which is "not finite and positive",
+    # so unidentified on a host whose optimiser lands on them to the last bit (Zen 5,
+    # 2026-11-28) and identified where it scatters by 1e-10: a test of round-off, not of
+    # identifiability.)
     H1 = np.array([1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 40.0])
-    th = theta_stop_eq45(H1, **HSTOP1)
+    th = theta_stop_eq45(H1, **HSTOP1) + np.random.default_rng(1).normal(0.0, 0.1, H1.size)
     iv1 = pd.DataFrame({"H": H1, "theta_arrested_max": th - 0.125,
                         "theta_flowing_min": th + 0.125})
     r1 = fit_hstop(iv1, lam=1.0, n_bootstrap=50)
     assert r1.extra["at_bound"] == [] and r1.extra["bound_conditional"] == {}
     assert r1.param_status["A"] == "identified"
+    for name in ("delta1", "delta2", "A"):
+        assert abs(r1.params[name] - HSTOP1[name]) < 3 * r1.stderr[name] + 0.05 * HSTOP1[name]
 
 
 def test_least_squares_forms_test_their_active_bounds_too():
