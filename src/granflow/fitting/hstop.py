@@ -42,7 +42,9 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 
-from .result import FitResult, bootstrap_stderr, error_eq49, failed_fit
+from .identify import at_bound, tolerance
+from .result import (BOOTSTRAP_MAX_FACTOR, FitResult, bootstrap_stderr, bootstrap_undecided,
+                     bootstrap_summary, error_eq49, failed_fit)
 
 EQ45 = "Weinhart et al. 2012 Eq. (45)"
 EQ38 = "Weinhart et al. 2012 Eq. (38)"
@@ -397,24 +399,39 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
     sigma_b = scatter["sigma_between"] if scatter else 0.0
 
     rng = np.random.default_rng(seed)
-    boot = []
+    boot, boot_at = [], []
     n = len(H)
     n_codes = int(base.max()) + 1 if len(base) else 0
-    for _ in range(int(n_bootstrap)):
-        idx = rng.integers(0, n, n)
-        if int(two_sided[idx].sum()) < min_intervals:
-            continue
-        lo_b, hi_b = lo[idx], hi[idx]
-        if sigma_b > 0:  # an offset common to each base's brackets, drawn anew per refit
-            shift = np.append(rng.normal(0.0, sigma_b, n_codes), 0.0)[base[idx]]
-            lo_b, hi_b = lo_b + shift, hi_b + shift
-        sol = _solve(H[idx], lo_b, hi_b, tie_break, theta_stop, d, [best.x])
-        if sol is not None and sol.success:
-            boot.append([sol.x[0], sol.x[0] + sol.x[1], sol.x[2]])
+    lower, upper = np.asarray(_LOWER), np.asarray(_UPPER)
+    # refits in batches of n_bootstrap until no identifiability test is left to the bootstrap's
+    # Monte Carlo error (bootstrap_undecided), or BOOTSTRAP_MAX_FACTOR batches: a stderr from
+    # one batch can change with the seed across its tolerance
+    limits = [max(r * abs(v), a) for (r, a), v in
+              zip((tolerance(kind, k) for k in HSTOP_PARAMS), params.values())]
+    attempted = 0
+    for batch in range(BOOTSTRAP_MAX_FACTOR if n_bootstrap > 0 else 0):
+        for _ in range(int(n_bootstrap)):
+            attempted += 1
+            idx = rng.integers(0, n, n)
+            if int(two_sided[idx].sum()) < min_intervals:
+                continue
+            lo_b, hi_b = lo[idx], hi[idx]
+            if sigma_b > 0:  # an offset common to each base's brackets, drawn anew per refit
+                shift = np.append(rng.normal(0.0, sigma_b, n_codes), 0.0)[base[idx]]
+                lo_b, hi_b = lo_b + shift, hi_b + shift
+            sol = _solve(H[idx], lo_b, hi_b, tie_break, theta_stop, d, [best.x])
+            if sol is not None and sol.success:
+                boot.append([sol.x[0], sol.x[0] + sol.x[1], sol.x[2]])
+                boot_at.append([at_bound(v, a, b) for v, a, b in zip(sol.x, lower, upper)])
+        if len(boot) >= 10 and not bootstrap_undecided(boot, limits, boot_at):
+            break
     boot = np.asarray(boot).reshape(-1, 3)
+    boot_info = bootstrap_summary(boot, HSTOP_PARAMS, np.asarray(boot_at, bool).reshape(-1, 3),
+                                  requested=n_bootstrap)
+    boot_info["attempted"] = attempted
     if len(boot) >= 10:
         stderr = {k: bootstrap_stderr(boot[:, j]) for j, k in enumerate(HSTOP_PARAMS)}
-        boot_msg = f"bootstrap: {len(boot)} of {n_bootstrap} refits"
+        boot_msg = f"bootstrap: {len(boot)} of {attempted} refits"
     else:
         stderr = {k: math.nan for k in HSTOP_PARAMS}
         boot_msg = f"bootstrap failed ({len(boot)} usable refits); stderr NaN"
@@ -425,8 +442,6 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
                      + ("is drawn per base in every refit" if sigma_b > 0 else
                         "is not resolved above the scatter within a base"))
     finite = np.concatenate([lo[np.isfinite(lo)], hi[np.isfinite(hi)]])
-    from .identify import at_bound
-
     at_b = [name for name, v, lo_b, hi_b in (("delta1", delta1, _LOWER[0], _UPPER[0]),
                                              ("delta2", width, _LOWER[1], _UPPER[1]),
                                              ("A", A, _LOWER[2], _UPPER[2]))
@@ -444,6 +459,7 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
         coords={k: v for k, v in coords.items() if v is not None},
         extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break,
                "at_bound": at_b, "bound_conditional": conditional, "base_scatter": scatter,
+               "bootstrap": boot_info,
                **({"base_sigma_between": float(sigma_b)} if scatter else {}),
                "intervals": {"H": H.tolist(), "lo": lo.tolist(), "hi": hi.tolist(),
                              "replicate": rep.tolist(), "base": base.tolist()}},
