@@ -476,8 +476,11 @@ def test_collect_writes_a_valid_table_and_lists_excluded_runs(campaign):
 
 def test_campaign_fits_recover_the_synthetic_closures(campaign):
     """Fitted where the data identify it, flagged where they do not: brackets 2 degrees wide at
-    five heights pin delta1 and A but not delta2 (reached only by extrapolation), and an alpha
-    without any dependence on h/hstop is stored as the reduced constant form."""
+    five heights pin delta1 but neither delta2 (reached only by extrapolation: stderr above
+    3 deg) nor A (with the 400 refits the bootstrap makes before its tests are decided, A's
+    stderr 2.4 may be above half its value, 2.55: a 20-refit bootstrap called it identified
+    with 1.78, Monte Carlo low; 1000 refits give 2.76), and an alpha without any dependence on
+    h/hstop is stored as the reduced constant form."""
     _, _, fits = campaign
     by = {(r.kind, r.coords.get("sigma")): r for r in fits}
     for kind in ("flow_rule", "density", "stress_ratio", "Ps_law"):
@@ -487,8 +490,11 @@ def test_campaign_fits_recover_the_synthetic_closures(campaign):
                    r.param_status.items() if st == "identified"), (kind, r.stderr)
     h = by[("hstop", None)]
     assert h.status == "unidentified" and not h.ok
-    assert h.param_status == {"delta1": "identified", "delta2": "unidentified", "A": "identified"}
+    assert h.param_status == {"delta1": "identified", "delta2": "unidentified",
+                              "A": "unidentified"}
     assert "exceeds the absolute tolerance" in h.param_reason["delta2"]
+    assert "Monte Carlo" in h.param_reason["A"]
+    assert h.extra["bootstrap"]["refits"] > 20 * 8   # refitted until decided, or 400
     assert by[("friction", None)].status == "unidentified"   # inherits delta2
     a = by[("alpha", None)]
     assert (a.status, a.form) == ("reduced", "constant")

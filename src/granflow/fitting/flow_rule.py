@@ -61,27 +61,30 @@ def mu_eq50(h, F, delta1, delta2, A, beta, gamma, d: float = 1.0):
     return out[()] if np.ndim(out) == 0 else out
 
 
-def _hstop_samples(hstop1, n_max: int):
-    """(delta1, delta2, A) rows of the hstop fit's ensemble (bootstrap), at most ``n_max``."""
+def _hstop_samples(hstop1, n_max: int, batch: int = 0):
+    """(delta1, delta2, A) rows ``batch * n_max`` ... ``(batch + 1) * n_max - 1`` of the hstop
+    fit's ensemble (bootstrap)."""
     if isinstance(hstop1, FitResult):
         ens = hstop1.ensemble_array()
-        return ens[:n_max] if ens.shape[0] else None
+        return ens[batch * n_max:(batch + 1) * n_max] if ens.shape[0] else None
     return None
 
 
-def joint_bootstrap(form, x_of, y, hstop1, sigma, n_boot: int, seed: int):
+def joint_bootstrap(form, x_of, y, hstop1, sigma, n_boot: int, seed: int, batch: int = 0):
     """Unconditional ensemble of a closure fitted to data that depend on hstop(theta; 1):
     replicate b pairs the b-th bootstrap refit of hstop (its ensemble) with a resample of the
     runs (cases, with replacement) and refits ``form``; rows stay aligned with the hstop
     ensemble (NaN where a replicate could not be fitted), so that composed closures (Eq. 50)
     can join the two ensembles sample by sample.  ``x_of(p)`` gives the model input for hstop
-    parameters p = (delta1, delta2, A) (NaN for runs outside (delta1, delta2))."""
+    parameters p = (delta1, delta2, A) (NaN for runs outside (delta1, delta2)).  ``batch`` k
+    pairs the next ``n_boot`` hstop refits (rows k n_boot ...) with resamples of its own
+    generator (seed, k), so that batches appended in order stay aligned."""
     from .lsq import least_squares
 
-    samples = _hstop_samples(hstop1, n_boot)
-    if samples is None or samples.shape[0] < 10:
+    samples = _hstop_samples(hstop1, n_boot, batch)
+    if samples is None or samples.shape[0] < (10 if batch == 0 else 1):
         return ()
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seed if batch == 0 else [seed, batch])
     n = y.size
     out = []
     for row in samples:
@@ -171,8 +174,8 @@ def fit_flow_rule(theta, h, F, hstop1, *, state=None, theta_min=None, theta_max=
 
     boot = None
     if isinstance(hstop1, FitResult) and hstop1.ensemble and n_bootstrap > 0:
-        def boot(form, lsq):
-            return joint_bootstrap(form, x_of, y, hstop1, s, n_bootstrap, seed)
+        def boot(form, lsq, batch=0):
+            return joint_bootstrap(form, x_of, y, hstop1, s, n_bootstrap, seed, batch)
     res = fit_forms("flow_rule", EQ47, FLOW_RULE_PARAMS, forms, x, y, sigma=s, ids=ids[mask],
                     coords=coords,
                     valid_range={"h": data_range(h_m), "theta": data_range(th_m),

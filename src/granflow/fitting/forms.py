@@ -25,7 +25,8 @@ from scipy import optimize
 from .identify import apply_heldout, apply_structure, assess, heldout_zscores
 from .lsq import (N_ENSEMBLE, least_squares, n_imputed, prediction_variance, usable_sigma,
                   variance_split)
-from .result import FitResult, bootstrap_stderr, data_range, error_eq49, failed_fit
+from .result import (FitResult, bootstrap_cap, bootstrap_stderr, bootstrap_summary,
+                     bootstrap_undecided, data_range, error_eq49, failed_fit)
 
 
 @dataclass
@@ -156,6 +157,45 @@ def _distinct_x(x) -> int | None:
     return int(np.unique(np.round(xa[np.isfinite(xa)], 9)).size)
 
 
+def _adaptive_bootstrap(kind, form, lsq, bootstrap):
+    """The ensemble of ``bootstrap(form, fit, batch)`` for batch 0, 1, ... until no
+    identifiability test of the form's parameters is left to the bootstrap's Monte Carlo error
+    (:func:`.result.bootstrap_undecided`), a batch comes back empty, or
+    :func:`.result.bootstrap_cap` rows; and its ``extra['bootstrap']`` summary (rows
+    kept aligned: a batch's rows follow the previous batch's, NaN rows included)."""
+    from .identify import at_bound, tolerance
+
+    free = list(form.free)
+    bounds = [form.bounds.get(p, (-math.inf, math.inf)) if form.bounds else
+              (-math.inf, math.inf) for p in free]
+    limits = [max(r * abs(lsq.params[p]), a) for p, (r, a) in
+              zip(free, (tolerance(kind, p) for p in free))]
+    ens = list(bootstrap(form, lsq, 0))
+    requested = len(ens)
+
+    def finite_rows():
+        arr = np.asarray(ens, dtype=float).reshape(-1, len(free))
+        arr = arr[np.all(np.isfinite(arr), axis=1)]
+        ab = np.array([[at_bound(v, *b) for v, b in zip(row, bounds)] for row in arr],
+                      bool).reshape(-1, len(free))
+        return arr, ab
+
+    batch = 1
+    while requested and len(ens) < bootstrap_cap(requested):
+        arr, ab = finite_rows()
+        if not bootstrap_undecided(arr, limits, ab):
+            break
+        more = list(bootstrap(form, lsq, batch))
+        if not more:
+            break
+        ens.extend(more)
+        batch += 1
+    arr, ab = finite_rows()
+    info = bootstrap_summary(arr, free, ab, requested=requested)
+    info["attempted"] = len(ens)
+    return tuple(ens), info
+
+
 def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, sigma=None,
               ids=None, coords=None, valid_range=None, extra=None, error_measure: str = "",
               selection: str = "", n_ensemble: int = N_ENSEMBLE, seed: int = 0,
@@ -165,9 +205,11 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
 
     ``x`` may be any array-like the models accept (e.g. a 2-row array); ``y`` 1D.  ``sigma``:
     per-run standard errors (weights, absolute covariance with Birge inflation).  ``ids``: run
-    identifiers (``runs_used``; held-out z-scores are keyed by them).  ``bootstrap(form, fit)``,
-    if given, returns an ensemble (n_samples x n_free) that replaces the covariance draws and
-    gives the standard errors (e.g. a joint bootstrap over an hstop fit the model depends on).
+    identifiers (``runs_used``; held-out z-scores are keyed by them).  ``bootstrap(form, fit,
+    batch)``, if given, returns batch ``batch`` of an ensemble (n_samples x n_free; empty when
+    there is no more) that replaces the covariance draws and gives the standard errors (e.g. a
+    joint bootstrap over an hstop fit the model depends on); batches are drawn until the
+    identifiability tests are decided (:func:`_adaptive_bootstrap`).
     ``structure_x``: the closure's physical input (default ``x`` when 1D), against which the
     residuals are tested for structure the form misses (:func:`.identify.residual_structure`).
     ``heldout``/``structure`` False: no held-out z-scores / no residual-structure test (points
@@ -209,13 +251,14 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
                                               **coords)))
             continue
         if bootstrap is not None:
-            ens = bootstrap(form, lsq)
+            ens, boot_info = _adaptive_bootstrap(kind, form, lsq, bootstrap)
             arr = np.asarray(ens, dtype=float) if len(ens) else np.zeros((0, len(form.free)))
             sd = {p: bootstrap_stderr(arr[:, j]) if arr.size else math.nan
                   for j, p in enumerate(form.free)}
             method = (f"bootstrap ({len(ens)} refits; stderr = half the central 68 % range)")
             res = _result_from(kind, equation, all_params, form, lsq, x, y, n, coords,
-                               valid_range or {}, extra or {}, error_measure, ens, method, sd)
+                               valid_range or {}, {**(extra or {}), "bootstrap": boot_info},
+                               error_measure, ens, method, sd)
         else:
             ens = lsq.ensemble(n_ensemble, seed)
             method = ("covariance of the weighted fit (absolute; inflated by the Birge ratio "

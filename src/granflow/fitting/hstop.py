@@ -43,7 +43,7 @@ import pandas as pd
 from scipy import optimize
 
 from .identify import at_bound, tolerance
-from .result import (BOOTSTRAP_MAX_FACTOR, FitResult, bootstrap_stderr, bootstrap_undecided,
+from .result import (FitResult, bootstrap_cap, bootstrap_stderr, bootstrap_undecided,
                      bootstrap_summary, error_eq49, failed_fit)
 
 EQ45 = "Weinhart et al. 2012 Eq. (45)"
@@ -404,13 +404,13 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
     n_codes = int(base.max()) + 1 if len(base) else 0
     lower, upper = np.asarray(_LOWER), np.asarray(_UPPER)
     # refits in batches of n_bootstrap until no identifiability test is left to the bootstrap's
-    # Monte Carlo error (bootstrap_undecided), or BOOTSTRAP_MAX_FACTOR batches: a stderr from
+    # Monte Carlo error (bootstrap_undecided), or bootstrap_cap(n_bootstrap) refits: a stderr from
     # one batch can change with the seed across its tolerance
     limits = [max(r * abs(v), a) for (r, a), v in
               zip((tolerance(kind, k) for k in HSTOP_PARAMS), params.values())]
-    attempted = 0
-    for batch in range(BOOTSTRAP_MAX_FACTOR if n_bootstrap > 0 else 0):
-        for _ in range(int(n_bootstrap)):
+    attempted, cap = 0, bootstrap_cap(n_bootstrap)
+    while attempted < cap:
+        for _ in range(min(int(n_bootstrap), cap - attempted)):
             attempted += 1
             idx = rng.integers(0, n, n)
             if int(two_sided[idx].sum()) < min_intervals:

@@ -189,11 +189,21 @@ def bootstrap_stderr(samples) -> float:
 
 #: the quantiles whose half distance is :func:`bootstrap_stderr`
 _Q_LOW, _Q_HIGH = 0.15865, 0.84135
-#: at most this many times the requested refits are made (:func:`bootstrap_undecided`)
+#: at most this many times the requested refits are made (:func:`bootstrap_undecided`), and
+#: at most BOOTSTRAP_MIN_CAP when that is more
 BOOTSTRAP_MAX_FACTOR = 8
-#: a parameter at an optimiser bound in more than this fraction of the bootstrap refits has a
-#: 2-sigma (95 %) range that reaches the bound: the data bound it on one side only
-BOOTSTRAP_BOUND_FRACTION = 0.025
+BOOTSTRAP_MIN_CAP = 400
+
+
+def bootstrap_cap(requested: int) -> int:
+    """The most refits a fit that asked for ``requested`` makes (0 for 0)."""
+    return max(BOOTSTRAP_MAX_FACTOR * int(requested), BOOTSTRAP_MIN_CAP) if requested > 0 else 0
+#: a parameter at an optimiser bound in more than this fraction of the bootstrap refits (the
+#: percentile of :func:`bootstrap_stderr`) has an stderr that the bound sets, not the data: the
+#: data limit it on one side only.  (Fewer refits at a bound are the resamples that leave out
+#: the few brackets a parameter rests on -- about exp(-k) of them for k brackets -- which the
+#: percentile stderr is meant to be robust to; they are reported, not judged.)
+BOOTSTRAP_BOUND_FRACTION = 0.15865
 
 
 def _quantile_rank_range(n: int, q: float, z: float) -> tuple[int, int]:
@@ -285,5 +295,8 @@ def bootstrap_summary(samples, names, at_bound_rows=None, requested: int | None 
         ab = np.asarray(at_bound_rows, dtype=bool).reshape(-1, len(names))
         out["at_bound_fraction"] = {n: float(ab[:, j].mean()) if ab.shape[0] else math.nan
                                     for j, n in enumerate(names)}
+        out["at_bound_fraction_range"] = {n: [float(v) for v in _wilson(int(ab[:, j].sum()),
+                                                                       ab.shape[0])]
+                                          for j, n in enumerate(names)}
     return out
 

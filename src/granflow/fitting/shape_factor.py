@@ -160,10 +160,10 @@ def fit_alpha_basal_layer(theta, h, alpha, hstop1, *, lam=None, contact_law=None
 
     boot = None
     if isinstance(h1, FitResult) and h1.ensemble and n_bootstrap > 0:
-        def boot(form, lsq):
+        def boot(form, lsq, batch=0):
             if form.name == "constant":  # does not depend on hstop: plain case bootstrap
-                return _case_bootstrap_mean(y, n_bootstrap, seed)
-            return joint_bootstrap(form, x_of, y, h1, s, n_bootstrap, seed)
+                return _case_bootstrap_mean(y, n_bootstrap, seed, batch)
+            return joint_bootstrap(form, x_of, y, h1, s, n_bootstrap, seed, batch)
     return fit_forms("alpha", EQ54, ALPHA_PARAMS, forms, x, y, sigma=s, ids=ids[m],
                      coords=coords, structure_x=h_m / hs[m],
                      valid_range={"theta": data_range(th_m), "h": data_range(h_m)},
@@ -172,8 +172,8 @@ def fit_alpha_basal_layer(theta, h, alpha, hstop1, *, lam=None, contact_law=None
                      sigma_parts=_parts(sigma_parts, m))
 
 
-def _case_bootstrap_mean(y, n_boot, seed):
-    rng = np.random.default_rng(seed)
+def _case_bootstrap_mean(y, n_boot, seed, batch=0):
+    rng = np.random.default_rng(seed if batch == 0 else [seed, batch])
     return tuple((float(np.mean(y[rng.integers(0, y.size, y.size)])),) for _ in range(n_boot))
 
 
