@@ -4,7 +4,8 @@ Reads every ``summary.json`` under ``<results>/bracket`` and ``<results>/chute``
 campaign whose steady runs are still going: the bisection chains finish first), forms one
 arrested/flowing bracket per (contact law, lambda, H, replicate) as the library's fit does
 (:func:`granflow.fitting.hstop.hstop_intervals_from_runs`), fits Eq. (45) with the library's
-settings (200 bootstrap refits, seed 1) and prints the brackets (beside Table 1's theta_stop at
+settings (200 bootstrap refits requested, more until the identifiability tests are
+decided; seed 1) and prints the brackets (beside Table 1's theta_stop at
 each height) and the fit against Table 1 (per lambda) with the rule of ``paper_table.py`` (2 stderr or 5 %, identified only).  Later
 results folders override earlier ones run by run (a chain rerun elsewhere replaces the
 original's runs at the same angle and height), unless ``--realisations``: then each folder is
@@ -162,6 +163,16 @@ def main():
                   f"{offsets['all']:+.2f} deg{per}")
         print(f"\nEq. (45) fit: {fit.status}; {len(iv)} brackets; held-out max |z| "
               f"{fit.diagnostics.get('heldout_max_abs_z', math.nan):.2f}")
+        boot = fit.extra.get("bootstrap") or {}
+        if boot:
+            frac = boot.get("at_bound_fraction") or {}
+            print(f"bootstrap: {boot.get('refits')} refits of {boot.get('attempted')} "
+                  f"(requested {boot.get('requested')}; more until every identifiability test "
+                  "is decided); stderr Monte Carlo ranges "
+                  + ", ".join(f"{k} {lo:.3g}-{hi:.3g}" for k, (lo, hi)
+                              in (boot.get("stderr_range") or {}).items())
+                  + "; refits at an optimiser bound "
+                  + ", ".join(f"{k} {100 * v:.1f} %" for k, v in frac.items()))
         sc = fit.extra.get("base_scatter")
         if sc:
             print(f"bases: {sc['n_bases']} (brackets {sc['brackets_per_base']}, mean offsets "
