@@ -382,6 +382,20 @@ def test_runs_not_in_the_needed_state_do_not_feed_a_closure(campaign_library):
     assert set(lib["campaign_run"].values[used].astype(str)) == set(fr.runs_used)
 
 
+def test_library_stores_the_bootstrap_refits_behind_each_stderr(campaign_library):
+    """Each bootstrap closure's refit count is in the library (CF variable): at least the 60
+    requested, exactly what its fit made, and the flow rule's joint bootstrap never has more
+    rows than the hstop ensemble it pairs with."""
+    _, by, lib = campaign_library
+    for kind in ("hstop", "flow_rule", "alpha"):
+        var = lib[f"{kind}_bootstrap_refits"]
+        assert var.attrs["units"] == "1" and "refits" in var.attrs["long_name"]
+        n = float(var.sel({"lambda": 1.0, "contact_law": "linear"}))
+        assert n == by[(kind, 1.0)].extra["bootstrap_refits"] >= 60
+    assert by[("flow_rule", 1.0)].extra["bootstrap_refits"] <= by[("hstop", 1.0)].extra[
+        "bootstrap_refits"]
+
+
 def test_flow_rule_stderr_is_unconditional_on_hstop(campaign_library):
     table, by, _ = campaign_library
     h1, fr = by[("hstop", 1.0)], by[("flow_rule", 1.0)]

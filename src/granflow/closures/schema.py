@@ -73,21 +73,28 @@ _BASE_SIGMA = (U.ANGLE, "standard deviation of an hstop offset common to one bas
                         "brackets (random effect in the bootstrap; NaN, or no such variable: all "
                         "brackets on one base)")
 
+#: how many bootstrap refits stand behind a closure's stderrs (a fit refits beyond the
+#: requested number until its identifiability tests are decided)
+_REFITS = (U.DIMENSIONLESS, "number of bootstrap refits behind the standard errors (more than "
+                            "requested until every identifiability test was decided, "
+                            "granflow.fitting.result.bootstrap_undecided)")
+
 KINDS = {
     "hstop": KindSpec(
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (45)", _HSTOP_PARAMS, U.ANGLE,
         {**_ANGLE_RANGE, "h": (U.LENGTH, "height H")},
         {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval"),
-         "base_sigma_between": _BASE_SIGMA}),
+         "base_sigma_between": _BASE_SIGMA, "bootstrap_refits": _REFITS}),
     "hstop_eq38": KindSpec(
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (38)", _HSTOP_PARAMS, U.ANGLE,
         {**_ANGLE_RANGE, "h": (U.LENGTH, "height H")},
         {"max_distance": (U.ANGLE, "largest horizontal distance of the curve to an interval"),
-         "base_sigma_between": _BASE_SIGMA}),
+         "base_sigma_between": _BASE_SIGMA, "bootstrap_refits": _REFITS}),
     "flow_rule": KindSpec(
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (47)", _FLOW_RULE_PARAMS,
         U.DIMENSIONLESS,
-        {**_ANGLE_RANGE, **_H_RANGE, "F": (U.DIMENSIONLESS, "Froude number F")}),
+        {**_ANGLE_RANGE, **_H_RANGE, "F": (U.DIMENSIONLESS, "Froude number F")},
+        {"bootstrap_refits": _REFITS}),
     "friction": KindSpec(
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (50)",
         {**_HSTOP_PARAMS, **_FLOW_RULE_PARAMS}, U.DIMENSIONLESS,
@@ -96,7 +103,7 @@ KINDS = {
         (CONTACT_LAW_DIM, LAMBDA_DIM), "Weinhart et al. 2012 Eq. (54), (55)",
         {"d_lambda": (U.DIMENSIONLESS, "basal-layer coefficient d_lambda (Eq. 54c)"),
          "alpha_constant": (U.DIMENSIONLESS, "constant shape factor alpha(lambda) (Eq. 55)")},
-        U.DIMENSIONLESS, {**_ANGLE_RANGE, **_H_RANGE}),
+        U.DIMENSIONLESS, {**_ANGLE_RANGE, **_H_RANGE}, {"bootstrap_refits": _REFITS}),
     "density": KindSpec(
         (CONTACT_LAW_DIM,), "Weinhart et al. 2012 Eq. (52)",
         {"c0": (U.DIMENSIONLESS, "bulk volume fraction coefficient c0"),

@@ -257,7 +257,8 @@ def fit_forms(kind: str, equation: str, all_params, forms: list[Form], x, y, *, 
                   for j, p in enumerate(form.free)}
             method = (f"bootstrap ({len(ens)} refits; stderr = half the central 68 % range)")
             res = _result_from(kind, equation, all_params, form, lsq, x, y, n, coords,
-                               valid_range or {}, {**(extra or {}), "bootstrap": boot_info},
+                               valid_range or {}, {**(extra or {}), "bootstrap": boot_info,
+                                                  "bootstrap_refits": boot_info["refits"]},
                                error_measure, ens, method, sd)
         else:
             ens = lsq.ensemble(n_ensemble, seed)

@@ -459,7 +459,7 @@ def _fit_hstop(form, intervals, runs, lam, contact_law, n_bootstrap, seed, tie_b
         coords={k: v for k, v in coords.items() if v is not None},
         extra={"max_distance": float(dist.max()), "n_two_sided": n_two, "tie_break": tie_break,
                "at_bound": at_b, "bound_conditional": conditional, "base_scatter": scatter,
-               "bootstrap": boot_info,
+               "bootstrap": boot_info, "bootstrap_refits": int(len(boot)),
                **({"base_sigma_between": float(sigma_b)} if scatter else {}),
                "intervals": {"H": H.tolist(), "lo": lo.tolist(), "hi": hi.tolist(),
                              "replicate": rep.tolist(), "base": base.tolist()}},
