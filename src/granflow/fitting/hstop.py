@@ -25,7 +25,11 @@ intervals among those; ``tie_break=0`` gives the paper's objective alone.
 Uncertainties are from a bootstrap over intervals (``stderr_method="bootstrap"``): the intervals
 are resampled with replacement ``n_bootstrap`` times and refitted; stderr is half the central
 68 % range of the refitted parameters (robust to the few resamples that drop the thinnest
-brackets, on which delta2 rests), and the refits are kept as the closure's ensemble.  Brackets
+brackets, on which delta2 rests), and the refits are kept as the closure's ensemble.  Further
+batches of ``n_bootstrap`` refits follow while an identifiability test is within the Monte
+Carlo error of its limit (:func:`granflow.fitting.result.bootstrap_undecided`; at most
+:func:`granflow.fitting.result.bootstrap_cap` refits), so that a status does not depend on
+the bootstrap's seed; ``extra['bootstrap']`` says how many refits were made.  Brackets
 on several base realisations (a ``base`` label per interval, e.g. a campaign's ``base_seed``) are
 not independent when one base lifts all of its brackets: the offset common to a base is
 estimated as a random effect (:func:`base_scatter`) and each refit shifts each base's brackets by
