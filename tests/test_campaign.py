@@ -535,6 +535,30 @@ def test_fit_json_round_trip_is_exact(campaign, tmp_path):
     assert len(rows) == len(closure_rows(fits))
 
 
+def test_fits_json_keeps_each_ensemble_column_with_its_parameter(campaign, tmp_path):
+    """fits.json is written with sorted keys, so hstop's params came back as A, delta1, delta2
+    while the ensemble's columns stay delta1, delta2, A: every consumer that read columns in
+    params order (paper_table.py's and the report's curve against the paper, the
+    identifiability correlation) paired A with delta1's refits (the lambda = 1/2 reference's
+    curve stderr: 13 deg against 0.20).  The order is stored now, and files written without it
+    are read in the library schema's order."""
+    from granflow.reference import paper_curves
+
+    _, _, fits = campaign
+    write_fits(fits, tmp_path / "f.json", tmp_path / "c.csv")
+    back = read_fits(tmp_path / "f.json")
+    for a, b in zip(fits, back):
+        assert list(b.params) == list(a.params) and list(b.stderr) == list(a.stderr)
+        np.testing.assert_array_equal(b.ensemble_array(), a.ensemble_array())
+    assert paper_curves(back) == paper_curves(fits) and len(paper_curves(fits)) >= 2
+    # a file from before the order was stored: sorted keys, no param_order
+    old = json.loads(json.dumps(fit_to_dict(next(f for f in fits if f.kind == "hstop"))))
+    del old["param_order"]
+    old["params"] = dict(sorted(old["params"].items()))
+    assert list(old["params"]) == ["A", "delta1", "delta2"]
+    assert list(fit_from_dict(old).params) == ["delta1", "delta2", "A"]
+
+
 def test_library_is_versioned_by_content_and_never_overwritten(campaign, tmp_path):
     d, _, fits = campaign
     table = read_table(d / "t.nc")

@@ -62,14 +62,34 @@ def fit_to_dict(r: FitResult) -> dict:
         "param_status": r.param_status, "param_reason": r.param_reason,
         "ensemble": [list(e) for e in r.ensemble], "diagnostics": r.diagnostics,
         "runs_used": list(r.runs_used), "selection": r.selection,
+        # the order of params is the order of the ensemble's columns; the JSON writer sorts
+        # keys, so it is stored apart
+        "param_order": list(r.params),
     })
+
+
+def _param_order(d: dict) -> list:
+    """The fit's parameter (= ensemble column) order: stored with it, else (fits.json written
+    before the order was stored) the order of its kind in the library schema, else as read."""
+    names = list(d["params"])
+    order = d.get("param_order")
+    if order and sorted(order) == sorted(names):
+        return list(order)
+    from ..closures.schema import KINDS
+
+    spec = KINDS.get(d.get("kind"))
+    if spec is not None and sorted(spec.params) == sorted(names):
+        return list(spec.params)
+    return names
 
 
 def fit_from_dict(d: dict) -> FitResult:
     d = _dec(d)
     extra = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get("extra", {}).items()}
-    return FitResult(kind=d["kind"], equation=d["equation"], params=dict(d["params"]),
-                     stderr=dict(d["stderr"]), error=float(d["error"]),
+    order = _param_order(d)
+    return FitResult(kind=d["kind"], equation=d["equation"],
+                     params={k: d["params"][k] for k in order},
+                     stderr={k: d["stderr"][k] for k in order if k in d["stderr"]}, error=float(d["error"]),
                      n_points=int(d["n_points"]), ok=bool(d["ok"]), message=d["message"],
                      stderr_method=d.get("stderr_method", "covariance"),
                      error_measure=d.get("error_measure", ""),
