@@ -72,6 +72,12 @@ def small_job(tmp_path_factory):
 
 def test_killed_run_resumes_to_identical_numbers(small_job):
     tmp, pfile, base = small_job
+    # t_end 40, not the fixture's 12: on a loaded machine (CI beside a campaign, 2026-11-28)
+    # the run went from its t > 2 checkpoint to its end between two polls and the kill came
+    # after its series.nc; with 38 units left the kill lands mid-run
+    long = tmp / "params_long.yaml"
+    long.write_text(yaml.safe_dump({**yaml.safe_load(pfile.read_text()), "t_end": 40.0}))
+    pfile = long
     ref = tmp / "ref"
     res = _run_cli(pfile, ref, base)
     assert res.returncode == 0, res.stderr
