@@ -78,10 +78,10 @@ def test_killed_run_resumes_to_identical_numbers(small_job):
     long = tmp / "params_long.yaml"
     long.write_text(yaml.safe_dump({**yaml.safe_load(pfile.read_text()), "t_end": 40.0}))
     pfile = long
-    ref = tmp / "ref"
+    ref = tmp / "ref_t40"
     res = _run_cli(pfile, ref, base)
     assert res.returncode == 0, res.stderr
-    killed = tmp / "killed"
+    killed = tmp / "killed_t40"
     proc = _run_cli(pfile, killed, base, wait=False)
     ckpt = killed / "checkpoint.npz"
     deadline = time.monotonic() + 300
@@ -222,10 +222,12 @@ def test_checkpoint_resumes_when_only_stopping_parameters_change(small_job, tmp_
 
 def test_same_seed_same_numbers_and_provenance(small_job):
     tmp, pfile, base = small_job
-    again = tmp / "again"
+    ref, again = tmp / "ref", tmp / "again"
+    res = _run_cli(pfile, ref, base, extra_env={"NUMBA_NUM_THREADS": "1"})
+    assert res.returncode == 0, res.stderr
     res = _run_cli(pfile, again, base, extra_env={"NUMBA_NUM_THREADS": "2"})
     assert res.returncode == 0, res.stderr
-    a = np.load(tmp / "ref" / "final_state.npz")
+    a = np.load(ref / "final_state.npz")
     b = np.load(again / "final_state.npz")
     assert np.array_equal(a["pos"], b["pos"])  # thread count does not change the numbers
     with xr.open_dataset(again / "profiles.nc") as ds:
