@@ -239,15 +239,14 @@ def bootstrap_stderr_range(samples, z: float = STDERR_RANGE_Z) -> tuple[float, f
     return (float(max(0.0, 0.5 * (x[h_lo] - x[l_hi]))), float(0.5 * (x[h_hi] - x[l_lo])))
 
 
-def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score interval of a binomial fraction k / n."""
+def _wilson(k: int, n: int) -> tuple[float, float]:
+    """Wilson score 95 % interval of a binomial fraction k / n (scipy.stats.binomtest)."""
     if n <= 0:
         return (0.0, 1.0)
-    p = k / n
-    c = z * z / n
-    mid = (p + 0.5 * c) / (1.0 + c)
-    half = z * math.sqrt(p * (1.0 - p) / n + 0.25 * c / n) / (1.0 + c)
-    return (max(0.0, mid - half), min(1.0, mid + half))
+    from scipy.stats import binomtest
+
+    ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=0.95, method="wilson")
+    return (float(ci.low), float(ci.high))
 
 
 def bootstrap_undecided(samples, limits, at_bound_rows=None) -> list[int]:
