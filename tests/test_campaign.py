@@ -640,6 +640,29 @@ def test_reference_configurations_are_the_papers_setups(name):
         assert cfg["numerics"]["insertion_growth"] == 5e-5
 
 
+def test_disordered_window_in_the_reference_and_bad_windows_refused():
+    """The lambda = 1/2 reference fits its steady closures in the paper's disordered regime
+    (Eq. 46, 48: delta3 25.5 deg at H <= 10, 24.5 above, delta_acc 29); a window that would
+    admit no run, or whose steps are out of order or out of range, is refused by key."""
+    cfg = load("reference-lambda-half.yaml")
+    check_config(copy.deepcopy(cfg), SCHEMA)
+    assert cfg["library"]["disordered_window"] == {0.5: {
+        "delta3": [{"H_max": 10.0, "theta": 25.5}, {"theta": 24.5}], "delta_acc": 29.0}}
+    bad = [({"delta3": [{"theta": 24.5}], "delta_acc": 24.0},
+            "library.disordered_window.0.5.delta_acc = 24: must lie above every delta3"),
+           ({"delta3": [{"H_max": 20.0, "theta": 24.5}, {"H_max": 10.0, "theta": 25.5}]},
+            "H_max must increase"),
+           ({"delta3": [{"theta": 24.5}, {"H_max": 10.0, "theta": 25.5}]},
+            "only the last step may omit H_max"),
+           ({"delta3": [{"theta": 95.0}]}, "(0, 90)")]
+    for window, message in bad:
+        c = copy.deepcopy(load("config.yaml"))
+        c["library"]["disordered_window"] = {0.5: window}
+        with pytest.raises(ValueError) as exc:
+            check_config(c, SCHEMA)
+        assert message in str(exc.value) and "disordered_window" in str(exc.value), exc.value
+
+
 def test_restart_parent_chains_each_height_from_its_middle_angle():
     """The lambda = 1 reference's steady grid with neighbour restarts: at H = 20 (22-29 deg) the
     root is 25 deg (lower middle of eight), 26 restarts from 25, 29 from 28, 22 from 23; at

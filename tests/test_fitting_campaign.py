@@ -113,3 +113,67 @@ def test_fit_campaign_to_library(tmp_path):
     h = np.array([20.0, 25.0, 30.0])
     F = gc.froude(lib, h, theta, 1.0)
     np.testing.assert_allclose(gc.mu(lib, h, F, 1.0), np.tan(np.radians(theta)), atol=1e-10)
+
+
+def test_disordered_window_delta3_steps():
+    """Eq. (48) at lambda = 1/2 as steps: 25.5 deg up to H = 10 (thinner layers too), 24.5 above;
+    with no open last step, heights above the last H_max have no delta3."""
+    from granflow.fitting import DisorderedWindow
+
+    w = DisorderedWindow.from_config({"delta3": [{"H_max": 10.0, "theta": 25.5},
+                                                 {"theta": 24.5}], "delta_acc": 29.0})
+    np.testing.assert_array_equal(w.delta3_at([1.5, 10.0, 10.01, 40.0]),
+                                  [25.5, 25.5, 24.5, 24.5])
+    assert w.delta_acc == 29.0 and DisorderedWindow.from_config(w.to_config()) == w
+    assert "25.5 deg for H <= 10, 24.5 deg for H > 10, delta_acc = 29" in w.describe()
+    assert np.isnan(DisorderedWindow(((10.0, 25.5),)).delta3_at([12.0])[0])
+    with pytest.raises(ValueError, match="H_max must increase"):
+        DisorderedWindow(((10.0, 25.5), (5.0, 24.5)))
+    with pytest.raises(ValueError, match=r"delta_acc 95.*\(0, 90\)"):
+        DisorderedWindow((), 95.0)
+
+
+def test_disordered_window_keeps_layered_and_thin_runs_out_of_the_steady_closures():
+    """The paper's steady closures at lambda <= 2/3 hold only for delta3(H) < theta < delta_acc
+    (Eq. 47, 50, §9.2).  A thin steady run just above its arrest (a bracket at H = 1.5) and a
+    run above delta_acc, with values far off the closures, must leave the flow rule, alpha,
+    density and K -- exactly as if they were not in the table -- and stay in the hstop
+    brackets; without the window they enter (so the test can fail)."""
+    table = synthetic_campaign(np.random.default_rng(7))
+    lam = 2.0 / 3.0
+    odd = [dict(theta=20.5, H=1.5, h=2.07, F=0.21, alpha=1.38, rho_c=0.50, K=0.80),
+           dict(theta=29.5, H=20.0, h=18.0, F=9.0, alpha=1.10, rho_c=0.50, K=0.80)]
+    records = table.to_dict("records")
+    for k, o in enumerate(odd):
+        records.append({**{c: np.nan for c in table.columns}, "lam": lam, "sigma": 1.0,
+                        "contact_law": "linear", "state": "steady", "run": f"odd{k}", **o})
+    from granflow.fitting import campaign_table_from_records
+
+    with_odd = campaign_table_from_records(records)
+    window = {lam: {"delta3": [{"H_max": 10.0, "theta": 22.0}, {"theta": 21.0}],
+                    "delta_acc": 29.0}}
+    kinds = ("flow_rule", "alpha", "density", "stress_ratio")
+
+    def by(fits):
+        return {f.kind: f for f in fits if f.kind in kinds and f.coords.get("lam") in (lam, None)
+                } | {"hstop": next(f for f in fits if f.kind == "hstop"
+                                    and f.coords.get("lam") == lam)}
+
+    cut = by(fit_campaign(with_odd, windows=window, n_bootstrap=10, include_eq38=False))
+    # the window also removes the synthetic grid's steady runs at or below 21/22 deg
+    ref_table = with_odd[~with_odd["run"].isin(["odd0", "odd1"])]
+    th, H, lam_col = (ref_table[c].to_numpy(float) for c in ("theta", "H", "lam"))
+    d3 = np.where(H <= 10.0, 22.0, 21.0)
+    keep = ~((np.abs(lam_col - lam) < 1e-9) & (ref_table["state"] == "steady").to_numpy()
+             & (th <= d3))
+    ref = by(fit_campaign(ref_table[keep], n_bootstrap=10, include_eq38=False))
+    for kind in kinds:
+        assert not {"odd0", "odd1"} & set(cut[kind].runs_used), kind
+        for p, v in ref[kind].params.items():
+            assert cut[kind].params[p] == pytest.approx(v, rel=1e-9, abs=1e-12, nan_ok=True), (kind, p)
+        assert "at or below delta3 at lambda = 0.666667" in cut[kind].selection, cut[kind].selection
+        assert "at or above delta_acc at lambda = 0.666667 (1 " not in cut[kind].selection
+    assert "1 at or above delta_acc at lambda = 0.666667" in cut["flow_rule"].selection
+    assert "odd0" in cut["hstop"].runs_used and "odd1" in cut["hstop"].runs_used
+    plain = by(fit_campaign(with_odd, n_bootstrap=10, include_eq38=False))
+    assert "odd0" in plain["alpha"].runs_used and "odd0" in plain["density"].runs_used

@@ -20,6 +20,9 @@ rule fit:
         f"{RESULTS}/logs/fit.log",
     params:
         n_bootstrap=LIBRARY.get("n_bootstrap", 200),
+        # Eq. 46/48: per lambda, the steady closures use only delta3(H) < theta < delta_acc
+        windows=json.dumps({str(k): v for k, v in
+                            (LIBRARY.get("disordered_window") or {}).items()}),
     threads: 1
     resources:
         **cluster_resources("fit"),
@@ -28,5 +31,6 @@ rule fit:
     shell:
         "granflow campaign fit --table {input.table} --segregation {input.segregation}"
         " --excluded {input.excluded}"
-        " --n-bootstrap {params.n_bootstrap} --out-json {output.json} --out-csv {output.csv}"
+        " --n-bootstrap {params.n_bootstrap} --windows-json {params.windows:q}"
+        " --out-json {output.json} --out-csv {output.csv}"
         " > {log} 2>&1"

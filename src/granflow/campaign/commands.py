@@ -161,7 +161,10 @@ def cmd_fit(args):
     table = read_table(args.table)
     seg = segregation_fits(args.segregation) if args.segregation else []
     excluded = read_excluded(args.excluded) if args.excluded else None
-    fits = run_fits(table, seg, n_bootstrap=args.n_bootstrap, seed=args.seed, excluded=excluded)
+    windows = ({float(k): v for k, v in json.loads(args.windows_json).items()}
+               if args.windows_json else None)
+    fits = run_fits(table, seg, n_bootstrap=args.n_bootstrap, seed=args.seed, excluded=excluded,
+                    windows=windows)
     if not fits:
         raise ValueError(f"{args.table} has no run with a decided flow state (see "
                          "excluded_runs.csv next to it): there is nothing to fit")
@@ -290,6 +293,10 @@ def register(subparsers):
                    help="excluded runs (collect); undecided ones count as flowing for hstop")
     p.add_argument("--n-bootstrap", type=int, default=200)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--windows-json", default=None,
+                   help="the disordered window per lambda (JSON {lambda: {delta3: [{H_max, "
+                        "theta}, ...], delta_acc}}, Eq. 46, 48): the steady closures use only "
+                        "runs inside it")
     p.add_argument("--out-json", required=True)
     p.add_argument("--out-csv", default=None)
     p.set_defaults(func=cmd_fit)

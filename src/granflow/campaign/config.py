@@ -211,11 +211,42 @@ def semantic_errors(config: dict) -> list[str]:
             if s.get("enabled") and s.get("theta_min", 5.0) >= s.get("theta_max", 40.0):
                 out.append("config keys campaigns.chute.hstop_search.theta_min/theta_max: "
                            "theta_min must be below theta_max")
+    out += _window_errors(config)
     out += _time_errors(config)
     search_on = enabled(config, "chute") and bool(
         (campaign_cfg(config, "chute").get("hstop_search") or {}).get("enabled"))
     if not out and not expand_runs(config) and not search_on:
         out.append("the configuration defines no runs: enable a campaign with a non-empty grid")
+    return out
+
+
+def _window_errors(config: dict) -> list[str]:
+    """``library.disordered_window``: steps in increasing H_max, only the last without one, and
+    delta_acc above every delta3 (the schema has checked each number's range)."""
+    out = []
+    for lam, w in ((config.get("library") or {}).get("disordered_window") or {}).items():
+        key = f"config key library.disordered_window.{lam}"
+        try:
+            lam_v = float(lam)
+        except (TypeError, ValueError):
+            out.append(f"{key}: the key must be a basal roughness lambda (a number in [0, 10])")
+            continue
+        if not 0 <= lam_v <= 10:
+            out.append(f"{key}: lambda {lam_v:g} outside the allowed range [0, 10]")
+        steps = list((w or {}).get("delta3") or [])
+        if any("H_max" not in s for s in steps[:-1]):
+            out.append(f"{key}.delta3: only the last step may omit H_max (it covers every "
+                       "thicker layer)")
+            continue
+        h = [float(s["H_max"]) for s in steps if "H_max" in s]
+        if any(b <= a for a, b in zip(h, h[1:])):
+            out.append(f"{key}.delta3: H_max must increase from step to step (got {h})")
+        acc = (w or {}).get("delta_acc")
+        thetas = [float(s["theta"]) for s in steps if "theta" in s]
+        if acc is not None and thetas and float(acc) <= max(thetas):
+            out.append(f"{key}.delta_acc = {float(acc):g}: must lie above every delta3 "
+                       f"(largest {max(thetas):g} deg), or no run could enter the steady "
+                       "closures")
     return out
 
 

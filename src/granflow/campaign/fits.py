@@ -49,12 +49,15 @@ def assess_segregation_runs(segregation, table=None) -> list:
     return out
 
 
-def run_fits(table, segregation=(), n_bootstrap: int = 200, seed: int = 0, excluded=None) -> list:
+def run_fits(table, segregation=(), n_bootstrap: int = 200, seed: int = 0, excluded=None,
+             windows=None) -> list:
     """All closure fits of a campaign (see module docstring).  ``excluded`` (runs that could not
-    enter the table) is accepted for the record; no fit uses those runs."""
+    enter the table) is accepted for the record; no fit uses those runs.  ``windows``: the
+    configuration's ``library.disordered_window`` ({lambda: {delta3, delta_acc}}, Eq. 46, 48)."""
     from ..fitting import fit_campaign
 
-    fits = list(fit_campaign(table, n_bootstrap=n_bootstrap, seed=seed)) if len(table) else []
+    fits = (list(fit_campaign(table, windows=windows, n_bootstrap=n_bootstrap, seed=seed))
+            if len(table) else [])
     fits += assess_segregation_runs(segregation, table)
     return fits
 

@@ -23,10 +23,11 @@ fit_asymmetric_flux         asymmetric-flux steady profile (seed 001 Eq. 2.9)
 fit_Ps_law                  Ps(sigma) = Pmax (1 - exp(-k (1/sigma - 1))), T-eq. (29)
 fit_mu_I                    mu(I) rheology, seed 001 Eq. (2.13)
 fit_campaign                all of the above from one campaign table
+DisorderedWindow            delta3(H) < theta < delta_acc of one roughness (Eq. 46, 48)
 ==========================  ===========================================================
 """
 
-from .campaign import fit_campaign
+from .campaign import DisorderedWindow, fit_campaign
 from .bulk import density_eq52, fit_bulk_density, fit_stress_ratio, stress_ratio_eq53
 from .flow_rule import fit_flow_rule, friction_closure, froude_eq47, mu_eq50
 from .hstop import (compare_hstop_forms, fit_hstop, fit_hstop_eq38, hstop_eq38, hstop_eq45,
@@ -53,5 +54,5 @@ __all__ = [
     "fit_alpha_basal_layer", "fit_alpha_constant",
     "phi_teq28", "phi_asymmetric", "asymmetric_flux_amplitude", "Ps_teq29", "fit_Ps",
     "fit_asymmetric_flux", "fit_Ps_law", "compare_segregation_models",
-    "mu_of_I", "inertial_number", "fit_mu_I", "fit_campaign",
+    "mu_of_I", "inertial_number", "fit_mu_I", "fit_campaign", "DisorderedWindow",
 ]

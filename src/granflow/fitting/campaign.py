@@ -11,6 +11,11 @@
   closure Eq. (50) composed from both (joined ensembles);
 * pooled over steady runs with lambda > 0 (as in the paper): bulk density Eq. (52) and stress
   ratio Eq. (53);
+* where a basal roughness has a :class:`DisorderedWindow` (Eq. 46 and 48), its steady closures
+  (flow rule, friction, alpha, density, K) use only the runs of the disordered regime
+  delta3(H) < theta < delta_acc, as the paper's do (§9.1: Eq. 47 and 50 hold "for delta3 < theta <
+  delta_acc"; §9.2: "the layered and oscillating flow regimes are thus excluded"); the hstop
+  brackets are never cut;
 * over bidisperse runs in a steady flow *and* a steady segregated state with a measured Ps: the
   size-ratio law T-eq. (29).
 
@@ -27,6 +32,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -46,6 +52,103 @@ UNDECIDED_TREATMENT = {
     "steady": "undecided runs are left out (the closure needs a steady flow)",
     "segregation": "only runs in a steady flow and a steady segregated state enter",
 }
+
+
+@dataclass(frozen=True)
+class DisorderedWindow:
+    """The disordered steady regime of one basal roughness, delta3(H) < theta < delta_acc
+    (Weinhart et al. 2012 Eq. 46 and 48), in which its steady closures are defined.
+
+    ``delta3``: steps ``((H_max, theta), ...)`` in increasing H_max: a run of filling height H
+    takes the theta of the first step with H <= H_max (``math.inf`` for "every thicker layer");
+    heights above the last H_max have no delta3.  Eq. (48) at lambda = 1/2 is
+    ``((10, 25.5), (inf, 24.5))``: layered and oscillating flows up to 25.5 deg at H = 10 and
+    24.5 deg at H > 10 (the paper gives no value below H = 10, where its grid stops; thinner
+    layers order at least as readily, so the H = 10 value is the conservative one).
+    ``delta_acc``: the smallest angle of accelerating flow (Eq. 46; None: no upper cut)."""
+
+    delta3: tuple = ()
+    delta_acc: float | None = None
+
+    def __post_init__(self):
+        steps = tuple((float(h), float(t)) for h, t in self.delta3)
+        if any(b[0] <= a[0] for a, b in zip(steps, steps[1:])):
+            raise ValueError(f"delta3 steps {steps}: H_max must increase from step to step")
+        for h, t in steps:
+            if not (h > 0 and 0 < t < 90):
+                raise ValueError(f"delta3 step (H_max {h:g}, theta {t:g}): allowed H_max > 0 "
+                                 "and theta in (0, 90) deg")
+        if self.delta_acc is not None and not 0 < float(self.delta_acc) < 90:
+            raise ValueError(f"delta_acc {self.delta_acc}: allowed (0, 90) deg")
+        object.__setattr__(self, "delta3", steps)
+
+    def delta3_at(self, H) -> np.ndarray:
+        """delta3 (deg) for each filling height; NaN where no step covers it."""
+        H = np.asarray(H, dtype=float)
+        out = np.full(H.shape, np.nan)
+        for h_max, theta in reversed(self.delta3):
+            out = np.where(H <= h_max, theta, out)
+        return out
+
+    def describe(self) -> str:
+        parts = []
+        lo = None
+        for h_max, theta in self.delta3:
+            where = (f"H > {lo:g}" if math.isinf(h_max) and lo is not None else
+                     "every H" if math.isinf(h_max) else
+                     f"H <= {h_max:g}" if lo is None else f"{lo:g} < H <= {h_max:g}")
+            parts.append(f"{theta:g} deg for {where}")
+            lo = h_max
+        s = "delta3 = " + ", ".join(parts) if parts else "no delta3"
+        if self.delta_acc is not None:
+            s += f", delta_acc = {float(self.delta_acc):g} deg"
+        return s + " (Eq. 46, 48)"
+
+    @classmethod
+    def from_config(cls, d: dict) -> "DisorderedWindow":
+        """From a configuration entry ``{delta3: [{H_max, theta}, ..., {theta}], delta_acc}``
+        (a step without H_max covers every thicker layer)."""
+        steps = [(float(s.get("H_max", math.inf)), float(s["theta"]))
+                 for s in (d.get("delta3") or [])]
+        acc = d.get("delta_acc")
+        return cls(tuple(steps), None if acc is None else float(acc))
+
+    def to_config(self) -> dict:
+        out = {"delta3": [({"H_max": h} if math.isfinite(h) else {}) | {"theta": t}
+                          for h, t in self.delta3]}
+        if self.delta_acc is not None:
+            out["delta_acc"] = float(self.delta_acc)
+        return out
+
+
+def _window_for(windows: dict, lam: float):
+    return next((w for k, w in windows.items() if abs(float(k) - float(lam)) < 1e-9), None)
+
+
+def _apply_window(pool: pd.DataFrame, use: np.ndarray, left: Counter, windows: dict) -> np.ndarray:
+    """Cut ``use`` to each run's disordered window (its lambda's); counts the cut runs."""
+    if not windows:
+        return use
+    use = use.copy()
+    lam = pool["lam"].to_numpy(float)
+    th = pool["theta"].to_numpy(float)
+    H = pool["H"].to_numpy(float)
+    for value in np.unique(lam):
+        w = _window_for(windows, value)
+        if w is None:
+            continue
+        at = use & (lam == value)
+        d3 = w.delta3_at(H)
+        below = at & np.isfinite(d3) & (th <= d3)
+        if below.any():
+            left[f"at or below delta3 at lambda = {value:g} (layered/oscillating regime; "
+                 f"{w.describe()})"] += int(below.sum())
+        above = at & (w.delta_acc is not None) & (th >= (w.delta_acc or 0.0))
+        if above.any():
+            left[f"at or above delta_acc at lambda = {value:g} ({w.describe()})"] += int(
+                above.sum())
+        use &= ~(below | above)
+    return use
 
 
 def _ids(runs: pd.DataFrame) -> np.ndarray:
@@ -152,16 +255,25 @@ def _state_counts(runs: pd.DataFrame, keep_states=("steady",)) -> Counter:
     return c
 
 
-def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 200, seed: int = 0,
-                 include_eq38: bool = True) -> list[FitResult]:
+def fit_campaign(table, *, windows=None, theta_min=None, theta_max=None, n_bootstrap: int = 200,
+                 seed: int = 0, include_eq38: bool = True) -> list[FitResult]:
     """All closure fits for a validated campaign table (see module docstring).
 
-    ``theta_min`` / ``theta_max``: optional ``{lambda: angle}`` maps of delta3 and delta_acc
-    (Eq. 46, 48) restricting the flow-rule, friction and alpha fits; by default all steady runs
-    inside (delta1, delta2) of lambda = 1 are used.
+    ``windows``: optional ``{lambda: DisorderedWindow}`` (or its configuration dict) cutting
+    each roughness's steady closures -- flow rule, friction, alpha, and its runs' share of the
+    pooled density and K -- to delta3(H) < theta < delta_acc (Eq. 46, 48).  ``theta_min`` /
+    ``theta_max``: ``{lambda: angle}`` shorthands for an H-independent delta3 / delta_acc.  By
+    default all steady runs inside (delta1, delta2) of lambda = 1 are used.
     """
     validate_campaign_table(table)
-    theta_min, theta_max = dict(theta_min or {}), dict(theta_max or {})
+    windows = {float(k): (w if isinstance(w, DisorderedWindow) else DisorderedWindow.from_config(w))
+               for k, w in dict(windows or {}).items()}
+    for k, v in dict(theta_min or {}).items():
+        w = _window_for(windows, k) or DisorderedWindow()
+        windows[float(k)] = DisorderedWindow(((math.inf, float(v)),), w.delta_acc)
+    for k, v in dict(theta_max or {}).items():
+        w = _window_for(windows, k) or DisorderedWindow()
+        windows[float(k)] = DisorderedWindow(w.delta3, float(v))
     results: list[FitResult] = []
     for law in sorted(set(table["contact_law"])):
         mono = select_runs(table, contact_law=law, sigma=1.0)
@@ -200,12 +312,9 @@ def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 20
         hstop1 = next((r for lam, r in hstops.items() if abs(lam - 1.0) < 1e-9), None)
         for lam in lams:
             pool = select_runs(mono, lam=lam)
-            tmin = next((v for k, v in theta_min.items() if abs(k - lam) < 1e-9), None)
-            tmax = next((v for k, v in theta_max.items() if abs(k - lam) < 1e-9), None)
-            results.extend(_steady_closures(pool, lam, law, hstop1, tmin, tmax, n_bootstrap,
-                                            seed))
+            results.extend(_steady_closures(pool, lam, law, hstop1, windows, n_bootstrap, seed))
         rough_pool = mono[mono["lam"] > 0]
-        results.extend(_bulk_closures(rough_pool, law, seed))
+        results.extend(_bulk_closures(rough_pool, law, seed, windows))
         seg = select_runs(table, contact_law=law)
         seg = seg[np.isfinite(seg["Ps"].to_numpy(float))]
         if len(seg):
@@ -213,17 +322,12 @@ def fit_campaign(table, *, theta_min=None, theta_max=None, n_bootstrap: int = 20
     return results
 
 
-def _steady_closures(pool, lam, law, hstop1, tmin, tmax, n_bootstrap, seed):
+def _steady_closures(pool, lam, law, hstop1, windows, n_bootstrap, seed):
     out = []
     left = _state_counts(pool)
     use = (pool["state"] == "steady").to_numpy().copy()
     th = pool["theta"].to_numpy(float)
-    if tmin is not None:
-        left["below delta3"] += int(np.sum(use & (th <= tmin)))
-        use &= th > tmin
-    if tmax is not None:
-        left["above delta_acc"] += int(np.sum(use & (th >= tmax)))
-        use &= th < tmax
+    use = _apply_window(pool, use, left, windows)
     if hstop1 is not None and hstop1.state != "failed":
         hs = hstop_eq45(th, **{k: hstop1.params[k] for k in ("delta1", "delta2", "A")})
         outside = use & ~(np.isfinite(hs) & (hs > 0))
@@ -273,12 +377,13 @@ def _with_selection(r: FitResult, selection: str, ids) -> FitResult:
     return r.replace(selection=selection, runs_used=tuple(ids) if r.ok else r.runs_used)
 
 
-def _bulk_closures(pool, law, seed):
+def _bulk_closures(pool, law, seed, windows=None):
     out = []
     for kind, col, fn in (("density", "rho_c", fit_bulk_density),
                           ("stress_ratio", "K", fit_stress_ratio)):
         left = _state_counts(pool)
         use = (pool["state"] == "steady").to_numpy().copy()
+        use = _apply_window(pool, use, left, windows or {})
         bad = use & ~np.isfinite(pool[col].to_numpy(float))
         if bad.any():
             left[f"no measured {col} (flow too thin for the bulk window)" if col == "rho_c"
