@@ -508,3 +508,64 @@ def test_library_damage_memory_finds_the_stored_lengths_of_variable_length_data(
         blob[offset:offset + 4] = struct.pack("<I", length)
         blob[offset + 4:offset + 12] = struct.pack("<Q", heap)
     assert bench.length_fields(bytes(blob)) == [8, 120, 200]
+
+
+def _series(path, t, u):
+    import xarray as xr
+
+    xr.Dataset({"u_mean": ("time", np.asarray(u, float))},
+               coords={"time": np.asarray(t, float)}).to_netcdf(path)
+
+
+def test_early_stop_bias_compares_the_steady_window_with_the_last_averaging_time(
+        tmp_path, monkeypatch, capsys):
+    """benchmarks/early_stop_bias.py on a run whose continuation is known: the early run stopped
+    at t = 300 with u = 10 over its steady window [200, 300]; the continuation (to the paper's
+    t = 2000: 1700 more) alternates T-block means 10.2 / 9.8 and ends on 10.2, so the relative
+    change is +2 %, the sd of the 17 block means is that of the alternation, and the ratio to
+    the run's reported u_bar_sem is exact.  Arrested, and already long, runs are not continued."""
+    import json
+
+    import yaml
+
+    mod = _load("early_stop_bias")
+    res = tmp_path / "results" / "c"
+    run = res / "chute" / "linear" / "lambda~0.5" / "theta~27" / "H~10"
+    run.mkdir(parents=True)
+    (run / "params.yaml").write_text(yaml.safe_dump(dict(theta=27.0, H=10.0, averaging_time=100.0,
+                                                          t_end=2000.0, early_stop=True)))
+    t = np.arange(0.0, 300.0, 0.5)
+    _series(run / "series.nc", t, np.where(t >= 200.0, 10.0, 5.0))
+    (run / "final_state.npz").write_bytes(b"state")
+    (run / "summary.json").write_text(json.dumps(dict(
+        flow_state="steady", t_final=300.0, steady_start=200.0,
+        depth_averages=dict(froude=2.0, flow_height=10.5, u_bar_sem=0.01))))
+    other = run.parent.parent / "theta~20" / "H~10"
+    other.mkdir(parents=True)
+    (other / "summary.json").write_text(json.dumps(dict(flow_state="arrested")))
+    calls = []
+
+    def fake(params_file, dest, state):
+        p = yaml.safe_load(params_file.read_text())
+        calls.append((p["t_end"], p["early_stop"], state.name))
+        tc = np.arange(0.0, p["t_end"] + 1e-9, 0.5)
+        block = np.minimum((tc // 100).astype(int), 16)
+        _series(dest / "series.nc", tc, np.where(block % 2 == 0, 10.2, 9.8))
+        (dest / "summary.json").write_text(json.dumps(dict(flow_state="steady",
+                                                            t_final=p["t_end"])))
+
+    monkeypatch.setattr(mod, "simulate_from", fake)
+    mod.main([str(res), "--lam", "0.5", "--jobs", "1", "--out", str(tmp_path / "esb")])
+    assert calls == [(1700.0, False, "final_state.npz")]
+    row, = json.loads((tmp_path / "esb" / "early_stop_bias.json").read_text())
+    assert row["u_early"] == pytest.approx(10.0)
+    assert row["u_paper"] == pytest.approx(10.2)
+    assert row["rel_change"] == pytest.approx(0.02)
+    assert row["F_paper_est"] == pytest.approx(2.04)
+    blocks = [10.2 if k % 2 == 0 else 9.8 for k in range(17)]
+    assert row["n_blocks"] == 17 and row["block_sd"] == pytest.approx(np.std(blocks, ddof=1))
+    assert row["block_sd_over_sem"] == pytest.approx(np.std(blocks, ddof=1) / 0.01)
+    assert "+2.00%" in capsys.readouterr().out
+    # a second call reuses the continuation
+    mod.main([str(res), "--lam", "0.5", "--jobs", "1", "--out", str(tmp_path / "esb")])
+    assert len(calls) == 1
