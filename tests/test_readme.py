@@ -133,6 +133,11 @@ README_COMMANDS = {
         ("tests/test_benchmark_tools.py::test_hstop_staircase_carries_each_state_to_the_next_run",
          "the script's walk, starts and intervals with the simulation replaced by a known "
          "hstop curve; the real run is a measurement (~50 min on one core)"),
+    ".venv/bin/python benchmarks/early_stop_bias.py RESULTS --lam 0.5 --jobs 2":
+        ("tests/test_benchmark_tools.py::test_early_stop_bias_compares_the_steady_window_with_the_last_averaging_time",
+         "on a results tree with one early-stopped steady run whose continuation is replaced by "
+         "a known series; the real continuations of the lambda = 1/2 reference took ~0.5 core "
+         "hours"),
     ".venv/bin/python benchmarks/continuum_solver_checks.py":
         ("tests/test_continuum.py::test_small_wave_with_viscosity_follows_the_linearised_equations",
          "the script prints the numbers the fast tests of tests/test_continuum.py assert "
