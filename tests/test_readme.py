@@ -136,7 +136,7 @@ README_COMMANDS = {
     ".venv/bin/python benchmarks/early_stop_bias.py RESULTS --lam 0.5 --jobs 2":
         ("tests/test_benchmark_tools.py::test_early_stop_bias_compares_the_steady_window_with_the_last_averaging_time",
          "on a results tree with one early-stopped steady run whose continuation is replaced by "
-         "a known series; the real continuations of the lambda = 1/2 reference took ~0.5 core "
+         "a known series; the real continuations of the lambda = 1/2 reference took 0.77 core "
          "hours"),
     ".venv/bin/python benchmarks/continuum_solver_checks.py":
         ("tests/test_continuum.py::test_small_wave_with_viscosity_follows_the_linearised_equations",
