@@ -32,7 +32,8 @@ phi0           1          mean small-particle volume fraction (NaN for non-segre
 <col>_std      as <col>   spread (standard deviation over the averaging window) of each
                           measured column: h, u_bar, F, alpha, K, rho_bar, rho_c, Ps, phi0
 <col>_sem      as <col>   standard error of the run's mean from decorrelated time windows
-                          (sqrt(g var / N)); the per-run uncertainty the fits use
+                          (sqrt(g var / N)); the per-run uncertainty the fits use: within
+                          the run's steady window only, a lower bound (``SEM_CAVEAT``)
 =============  =========  =================================================================
 
 Optional extra columns used by the fits when present: ``run`` (run identifier, listed in each
@@ -80,6 +81,14 @@ COLUMN_ATTRS = {
     "Ps": U.cf(U.DIMENSIONLESS, "segregation Peclet number Ps"),
     "phi0": U.cf(U.DIMENSIONLESS, "mean small-particle volume fraction phi0"),
 }
+#: What a run's ``<col>_sem`` does not know (stored as the columns' ``comment``).  Measured on the
+#: lambda = 1/2 reference (README, benchmarks/early_stop_bias.py): continued to t = 2000, its
+#: early-stopped runs' 100-unit means of u_bar scatter 1.4-14x more than their u_bar_sem says.
+SEM_CAVEAT = ("within-run only: batch means of the run's coarse-graining windows inside its "
+              "steady averaging window, so a lower bound when that window spans few correlation "
+              "times of the flow (measured on the lambda = 1/2 reference: the scatter of one "
+              "run's 100-unit means 1.4-14x this value, README); the scatter between seeds "
+              "enters the fits only through replicate runs")
 for _c in MEASURED_COLUMNS:
     _a = dict(COLUMN_ATTRS[_c])
     _a["long_name"] = "spread (standard deviation) of " + _a["long_name"]
@@ -87,6 +96,7 @@ for _c in MEASURED_COLUMNS:
     _a = dict(COLUMN_ATTRS[_c])
     _a["long_name"] = ("standard error of the run mean (decorrelated time windows) of "
                        + _a["long_name"])
+    _a["comment"] = SEM_CAVEAT
     COLUMN_ATTRS[f"{_c}_sem"] = _a
 
 
