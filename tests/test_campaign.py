@@ -95,6 +95,13 @@ def test_default_campaign_covers_every_closure():
     assert cfg["species"]["t_c"] == 0.005
     text = reductions_vs_paper(cfg)
     assert "collision time" not in text and "chute box 10 x 5" in text
+    # ... with the box's measured effect on thin layers (granflow.reference.BOX_EFFECT)
+    assert ("in the paper's 20 x 10 box F is -11 to -12 % at lambda = 1/2" in text
+            and "-2 to -6 % at lambda = 1" in text and "up to 14 %" in text), text
+    other_box = copy.deepcopy(cfg)
+    other_box["campaigns"]["chute"].update(Lx=12.0, Ly=6.0)
+    assert "chute box 12 x 6 (paper 20 x 10)" in reductions_vs_paper(other_box)
+    assert "BOX_EFFECT" not in reductions_vs_paper(other_box)
     assert "hstop brackets from bisection chains at H = 1.5, 2, 3, 5, 8, 13 (0.5 deg wide)" in text
     assert "fall fresh onto the base instead of continuing from a flowing state" in text
     cont = copy.deepcopy(cfg)

@@ -104,7 +104,10 @@ def config_differences(config: dict) -> list[str]:
         cn = dict(nu, **(chute.get("numerics") or {}))
         box = (chute.get("Lx"), chute.get("Ly"))
         if None not in box and not (_same(box[0], PAPER["box"][0]) and _same(box[1], PAPER["box"][1])):
-            out.append(f"chute box {_fmt(box[0])} x {_fmt(box[1])} (paper 20 x 10)")
+            from ..reference import box_effect_note
+
+            out.append(f"chute box {_fmt(box[0])} x {_fmt(box[1])} (paper 20 x 10)"
+                       + box_effect_note(*box))
         if "t_end" in cn and not _same(cn["t_end"], PAPER["t_end"]):
             out.append(f"chute runs capped at t = {_fmt(cn['t_end'])} (paper 2000; runs stop "
                        "earlier once their state is known)")
