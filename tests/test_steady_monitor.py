@@ -1,6 +1,7 @@
 """Tests of granflow.steady.monitor.SteadyStateMonitor on synthetic runs."""
 
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -196,3 +197,47 @@ def test_return_from_a_dip_is_not_acceleration(seed):
     assert max(old_growth) >= 1.45
     s = mon.series()
     assert mon._growth(s["ratio"], s["time"]) < 1.0
+
+
+# A real run that overshoots and relaxes (lambda = 1/2, 28 deg, H = 10, the paper's 20 x 10
+# box and species; README "Why gamma is off at lambda = 1/2"): its series binned to 1 time unit,
+# 0-471 from the run, which the engine stopped as steady at t = 470.5 over [52.5, 470.5], and
+# 471-971 from its continuation without early stopping (`granflow simulate --from`), where it
+# settled at u_mean 6.797 over the last 100 units.
+HUMP = Path(__file__).parent / "data" / "hump_lambda_half_20x10_theta28_H10.csv"
+
+
+def _replay_hump():
+    import pandas as pd
+
+    d = pd.read_csv(HUMP)
+    m = SteadyStateMonitor(t_cap=2000.0, averaging_time=100.0, check_every=10.0,
+                           min_accelerating_time=1500.0)
+    for r in d.itertuples():
+        m.update(r.t, r.e_kin, r.e_ela, r.u_mean)
+        if m.decision().stop:
+            break
+    return d, m.decision()
+
+
+def test_replayed_hump_reproduces_the_engines_steady_stop():
+    """The binned series through the monitor gives the engine's decision (steady at t = 470.5,
+    window from 52.5) to within one check interval (10 time units; the verdict is marginal --
+    N_eff at its minimum -- so binning moves it by one check): the data file is the run's."""
+    _, dec = _replay_hump()
+    assert dec.stop and dec.reason == "steady"
+    assert dec.t == pytest.approx(470.5, abs=10.0)
+    assert dec.steady_start == pytest.approx(52.5, abs=3.0)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known defect (README, early stopping): the monitor stops on a relaxing overshoot -- N_eff "
+    "at its minimum 10, linear trend p 0.6, curvature p 0.1 -- with the window's mean u 6.8 % "
+    "above the level the run settles to; the equivalence test bounds only the linear trend"))
+def test_monitor_does_not_stop_on_a_relaxing_overshoot():
+    d, dec = _replay_hump()
+    settled = float(d[d["t"] >= d["t"].max() - 100.0]["u_mean"].mean())
+    assert settled == pytest.approx(6.797, abs=1e-3)
+    if dec.stop and dec.reason == "steady":
+        w = d[(d["t"] >= dec.steady_start) & (d["t"] <= dec.t)]["u_mean"].mean()
+        assert abs(w / settled - 1.0) < 0.03, (dec.t, dec.steady_start, w)
