@@ -356,7 +356,8 @@ def snapshot_interval_note(interval_tc: float) -> str:
     return ""
 
 
-#: The chute box against the paper's 20 x 10, measured on thin disordered layers (H = 10) with
+#: The chute box against the paper's 20 x 10, measured on disordered layers (H = 10; at lambda =
+#: 1/2 also H = 20, ``F_change_H20``) with
 #: the paper's species and run parameters, one run per box and base (README "Why gamma is off at
 #: lambda = 1/2"; lambda = 1: README, the lambda = 1 reference's flow rule).  ``F_change``: F in
 #: 20 x 10 relative to 10 x 5 (at lambda = 1/2 against the mean of three 10 x 5 bases), per
@@ -366,7 +367,7 @@ BOX_EFFECT = {
     "box": (10.0, 5.0),
     0.5: {"H": 10.0, "F_change": {27.0: -0.114, 28.0: -0.120}, "alpha": ((1.115, 1.129),
                                                                           (1.138, 1.142)),
-          "base_span": 0.14},
+          "base_span": 0.14, "F_change_H20": {27.0: -0.123}},
     1.0: {"H": 10.0, "F_change": {26.0: -0.055, 28.0: -0.019}},
 }
 
@@ -381,13 +382,15 @@ def box_effect_note(Lx: float, Ly: float) -> str:
     ch = sorted(half["F_change"].values())
     c1 = sorted(one["F_change"].values())
     (a_lo, a_hi), (b_lo, b_hi) = half["alpha"]
-    return (f"; measured (granflow.reference.BOX_EFFECT) on thin layers (H = 10) at the paper's "
+    h20 = sorted(half["F_change_H20"].values())
+    return (f"; measured (granflow.reference.BOX_EFFECT) on layers of H = 10 at the paper's "
             f"species: in the paper's 20 x 10 box F is {100 * ch[-1]:+.0f} to {100 * ch[0]:+.0f} % "
-            f"at lambda = 1/2 (27, 28 deg, against the mean of three 10 x 5 bases) and "
+            f"at lambda = 1/2 (27, 28 deg, against the mean of three 10 x 5 bases; "
+            f"{100 * h20[0]:+.0f} % at H = 20, 27 deg) and "
             f"{100 * c1[-1]:+.0f} to {100 * c1[0]:+.0f} % at lambda = 1, alpha {b_lo:g}-{b_hi:g} "
             f"against {a_lo:g}-{a_hi:g} at lambda = 1/2, and one 10 x 5 base moves F at "
-            f"lambda = 1/2 by up to {100 * half['base_span']:.0f} %: at lambda <= 1/2 this "
-            "box biases the flow rule (gamma) and alpha")
+            f"lambda = 1/2 by up to {100 * half['base_span']:.0f} % at H = 10: at lambda <= 1/2 "
+            "this box biases the flow rule and alpha")
 
 
 #: hstop brackets over other base realisations (measured 2026-11-27 at lambda = 1/2, the
