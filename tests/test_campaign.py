@@ -289,6 +289,43 @@ def test_bisection_replicates_per_height_and_bad_heights():
         check_config(cfg, SCHEMA)
 
 
+def test_bracket_runs_take_their_own_box():
+    """``hstop_bisection.Lx``/``Ly``: the bracket runs (and their bases) in their own box while
+    the steady grid keeps the campaign's (the paper's 20 x 10, where the flow rule and alpha
+    feel the box: granflow.reference.BOX_EFFECT); stated in ``reductions_vs_paper``; a bracket
+    box below 3 lambda is refused naming the key."""
+    from granflow.campaign.reductions import config_differences
+
+    cfg = copy.deepcopy(load("config.yaml"))
+    chute = cfg["campaigns"]["chute"]
+    chute.update(Lx=20.0, Ly=10.0)
+    bracket = G.RunPoint("bracket", "linear", 1.0, 25.0, 3.0)
+    steady = G.RunPoint("chute", "linear", 1.0, 26.0, 10.0)
+    # without the keys the brackets share the campaign's box and base, and nothing is stated
+    assert G.box(cfg, "bracket") == G.box(cfg, "chute") == (20.0, 10.0)
+    assert G.base_path(cfg, bracket) == G.base_path(cfg, steady)
+    assert not [d for d in config_differences(cfg) if d.startswith("hstop bracket runs in")]
+    chute["hstop_bisection"].update(Lx=10.0, Ly=5.0)
+    check_config(cfg, SCHEMA)
+    b, s = G.run_params(cfg, bracket), G.run_params(cfg, steady)
+    assert (b["Lx"], b["Ly"], s["Lx"], s["Ly"]) == (10.0, 5.0, 20.0, 10.0)
+    assert G.base_path(cfg, bracket) == "bases/lambda~1/box~10x5/base.npy"
+    assert G.base_path(cfg, steady) == "bases/lambda~1/box~20x10/base.npy"
+    assert G.parse_base_path(G.base_path(cfg, bracket)) == (1.0, 10.0, 5.0)
+    notes = [d for d in config_differences(cfg) if d.startswith("hstop bracket runs in")]
+    assert notes == ["hstop bracket runs in a 10 x 5 box (paper 20 x 10; the steady grid in the "
+                     "campaign's box)"]
+    assert not [d for d in config_differences(cfg) if d.startswith("chute box")]
+    chute["hstop_bisection"]["lambda"] = [2.0]
+    with pytest.raises(ValueError, match=r"hstop_bisection\.Lx/Ly = 10\.0, 5\.0: the box must be "
+                                         r"at least 3 lambda = 6\.0 wide for lambda = 2\.0"):
+        check_config(cfg, SCHEMA)
+    chute["hstop_bisection"]["lambda"] = [1.0]
+    chute["hstop_bisection"]["Ly"] = -1.0
+    errors = schema_errors(cfg, SCHEMA)
+    assert errors and any("Ly" in e for e in errors)
+
+
 def test_box_smaller_than_three_lambda_is_rejected():
     cfg = copy.deepcopy(load("config.yaml"))
     cfg["campaigns"]["chute"]["lambda"] = [2.0]

@@ -174,6 +174,26 @@ def test_base_rule_makes_the_base_the_config_names(tmp_path):
     assert "--settle-mu-c 0.5 --fill-packing 0.6 --band paper" in commands["default"][0]
 
 
+def test_bracket_box_gets_its_own_base_job(tmp_path):
+    """``hstop_bisection.Lx/Ly``: a bracket run falls onto a base made in its own box, a steady
+    grid run onto the campaign's (dry run of one run of each kind, shell commands printed)."""
+    overlay = tmp_path / "box.yaml"
+    overlay.write_text("campaigns:\n  chute:\n    hstop_bisection:\n      Lx: 5.0\n      Ly: 3.0\n")
+    plans = {}
+    for kind in ("bracket", "chute"):
+        target = f"{RESULTS}/{kind}/linear/lambda~1/theta~25/H~3/summary.json"
+        cmd = [*SNAKEMAKE, "--snakefile", str(REPO / "Snakefile"), "--directory", str(tmp_path),
+               "-n", "-p", "--configfile", str(TINY), str(overlay), "--", target]
+        proc = _check(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
+        plans[kind] = (re.findall(r"prepare-base --lam 1 --Lx (\S+) --Ly (\S+)", proc.stdout),
+                       re.findall(r"--base (\S+)", proc.stdout),
+                       re.findall(r'"Lx": ([0-9.]+), "Ly": ([0-9.]+)', proc.stdout))
+    assert plans["bracket"] == ([("5", "3")], [f"{RESULTS}/bases/lambda~1/box~5x3/base.npy"],
+                                [("5.0", "3.0")])
+    assert plans["chute"] == ([("6", "4")], [f"{RESULTS}/bases/lambda~1/box~6x4/base.npy"],
+                              [("6.0", "4.0")])
+
+
 def _bisection_plan(tmp_path, bisection_yaml):
     """Dry-run plan of the tiny campaign with ``hstop_bisection`` keys overlaid: (output, job
     counts by rule)."""

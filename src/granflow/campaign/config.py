@@ -195,6 +195,12 @@ def semantic_errors(config: dict) -> list[str]:
             if b.get("enabled"):
                 from .hstop import bisection_replicate_errors
                 out += bisection_replicate_errors(b)
+                bx, by = float(b.get("Lx", Lx)), float(b.get("Ly", Ly))
+                for lam in list(b.get("lambda") or c.get("lambda") or [1.0]):
+                    if ("Lx" in b or "Ly" in b) and lam > 0 and (bx < 3 * lam or by < 3 * lam):
+                        out.append(f"config key campaigns.chute.hstop_bisection.Lx/Ly = {bx}, "
+                                   f"{by}: the box must be at least 3 lambda = {3 * lam} wide "
+                                   f"for lambda = {lam}")
             if b.get("enabled") and b.get("replicate_bases"):
                 from .grid import replicates
 

@@ -209,8 +209,16 @@ def _config_kind(kind: str) -> str:
 
 
 def box(config: dict, kind: str) -> tuple[float, float]:
+    """Box (Lx, Ly) of a run kind: the campaign's ``Lx``, ``Ly`` (default the paper's 20 x 10);
+    hstop bisection brackets take ``hstop_bisection.Lx``/``Ly`` where set (an arrest/flow
+    bracket is cheaper in a smaller box, while the steady grid's closures feel the box: measured
+    at lambda = 1/2, :data:`granflow.reference.BOX_EFFECT`)."""
     c = campaign_cfg(config, _config_kind(kind))
-    return float(c.get("Lx", 20.0)), float(c.get("Ly", 10.0))
+    Lx, Ly = float(c.get("Lx", 20.0)), float(c.get("Ly", 10.0))
+    if kind == "bracket":
+        bis = c.get("hstop_bisection") or {}
+        Lx, Ly = float(bis.get("Lx", Lx)), float(bis.get("Ly", Ly))
+    return Lx, Ly
 
 
 def base_settings(config: dict) -> dict:

@@ -150,6 +150,13 @@ def config_differences(config: dict) -> list[str]:
             if bis.get("replicate_bases", False):
                 out.append("hstop replicate chain k falls onto a base of its own (seed base.seed "
                            "+ k, made the same way), where the paper used one base per lambda")
+            if "Lx" in bis or "Ly" in bis:
+                from .grid import box as run_box
+
+                bx, by = run_box(config, "bracket")
+                if not (_same(bx, PAPER["box"][0]) and _same(by, PAPER["box"][1])):
+                    out.append(f"hstop bracket runs in a {_fmt(bx)} x {_fmt(by)} box (paper 20 x "
+                               "10; the steady grid in the campaign's box)")
         elif not hs.get("enabled", False):
             out.append("hstop brackets from a fixed (theta, H) grid instead of the paper's "
                        "adaptive search")
