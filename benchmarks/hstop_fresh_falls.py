@@ -146,7 +146,7 @@ def main(argv=None):
     if args.base_seed is not None:
         config["base"] = dict(config.get("base") or {}, seed=args.base_seed)
     out = Path(args.out)
-    Lx, Ly = G.box(config, "chute")
+    Lx, Ly = G.box(config, "bracket")  # the runs are bracket runs: their box
     bcfg = G.base_settings(config)
     # the configuration's base (where it differs from BaseConfig's defaults), then the options
     defaults = BaseConfig()

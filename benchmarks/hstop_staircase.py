@@ -94,7 +94,7 @@ def main(argv=None):
     config = merged_config(args.configfile)
     out = Path(args.out)
     # the campaign's base (same seed and layers as its bracket runs)
-    Lx, Ly = G.box(config, "chute")
+    Lx, Ly = G.box(config, "bracket")  # the runs are bracket runs: their box
     base_cfg = G.base_settings(config)
     base = out / "bases" / f"lambda~{G.format_value(args.lam)}" / f"box~{G.format_value(Lx)}x{G.format_value(Ly)}" / "base.npy"
     if not base.exists():
