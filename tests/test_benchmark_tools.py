@@ -569,3 +569,46 @@ def test_early_stop_bias_compares_the_steady_window_with_the_last_averaging_time
     # a second call reuses the continuation
     mod.main([str(res), "--lam", "0.5", "--jobs", "1", "--out", str(tmp_path / "esb")])
     assert len(calls) == 1
+
+
+def test_flow_rule_runs_recovers_table_1_from_runs_on_its_law(tmp_path, capsys):
+    """benchmarks/flow_rule_runs.py on run folders whose F lies exactly on Table 1's lambda = 1/2
+    law (beta 0.300, gamma -0.236 with Table 1's hstop(theta; 1)): the fit returns Table 1's
+    parameters, the paper's law has zero error on them, alpha is the runs' mean; a layered run
+    is listed but left out, and a bad --hstop curve is refused before anything is read."""
+    import json
+
+    from granflow.fitting.flow_rule import froude_eq47
+    from granflow.reference import paper_value
+
+    frr = _load("flow_rule_runs")
+    hs1 = {k: paper_value("hstop", k, 1.0) for k in ("delta1", "delta2", "A")}
+    points = [(26.0, 20.0, 19.3), (27.0, 10.0, 10.5), (27.0, 20.0, 19.7), (28.0, 10.0, 11.2),
+              (28.0, 20.0, 20.3), (25.0, 20.0, 19.0)]
+    dirs = []
+    for k, (theta, H, h) in enumerate(points):
+        F = float(froude_eq47(h, theta, 0.300, -0.236, **hs1))
+        d = tmp_path / f"run{k}"
+        d.mkdir()
+        state = "layered" if theta == 25.0 else "steady"
+        (d / "summary.json").write_text(json.dumps({
+            "flow_state": state,
+            "params": {"theta": theta, "H": H, "lam": 0.5, "Lx": 20.0, "Ly": 10.0},
+            "depth_averages": {"flow_height": h, "froude": F if state == "steady" else 9.0,
+                               "alpha": 1.14 + 0.001 * k}}))
+        dirs.append(str(d))
+    runs = frr.read_runs(dirs)
+    steady = [r for r in runs if r["state"] == "steady"]
+    assert len(runs) == 6 and len(steady) == 5
+    f = frr.fit_with(steady, hs1)
+    assert f.params["beta"] == pytest.approx(0.300, abs=1e-9)
+    assert f.params["gamma"] == pytest.approx(-0.236, abs=1e-9)
+    law = frr.paper_law(steady, 0.5)
+    assert law["error"] == pytest.approx(0.0, abs=1e-12) and law["paper"] == 0.229
+    frr.main(dirs)
+    out = capsys.readouterr().out
+    assert "5 steady of 6 runs" in out and "| layered |" in out
+    assert "beta 0.3 +- " in out and "gamma -0.236 +- " in out
+    assert "alpha: 1.1420 +- 0.0016 (mean, sd of 5) against Table 2's 1.142 (+0.0 %)" in out
+    with pytest.raises(SystemExit, match="need 0 < delta1 < delta2 < 90"):
+        frr.main(dirs + ["--hstop", "30", "20", "3"])

@@ -133,6 +133,9 @@ README_COMMANDS = {
         ("tests/test_benchmark_tools.py::test_hstop_staircase_carries_each_state_to_the_next_run",
          "the script's walk, starts and intervals with the simulation replaced by a known "
          "hstop curve; the real run is a measurement (~50 min on one core)"),
+    ".venv/bin/python benchmarks/flow_rule_runs.py RUN_DIR ... --hstop 18.214 33.790 3.427":
+        ("tests/test_benchmark_tools.py::test_flow_rule_runs_recovers_table_1_from_runs_on_its_law",
+         "on six synthetic run folders whose F lies on Table 1's law"),
     ".venv/bin/python benchmarks/early_stop_bias.py RESULTS --lam 0.5 --jobs 2":
         ("tests/test_benchmark_tools.py::test_early_stop_bias_compares_the_steady_window_with_the_last_averaging_time",
          "on a results tree with one early-stopped steady run whose continuation is replaced by "
