@@ -35,6 +35,8 @@ def read_runs(dirs) -> list[dict]:
     """theta, H, lambda, h, F, alpha, state of each run folder (its summary.json)."""
     out = []
     for d in dirs:
+        if not (Path(d) / "summary.json").is_file():
+            raise SystemExit(f"{d}: no summary.json (not a finished run folder)")
         s = json.loads((Path(d) / "summary.json").read_text())
         a, p = s["depth_averages"], s["params"]
         out.append({"run": str(d), "theta": float(p["theta"]), "H": float(p["H"]),
