@@ -177,3 +177,31 @@ def test_disordered_window_keeps_layered_and_thin_runs_out_of_the_steady_closure
     assert "odd0" in cut["hstop"].runs_used and "odd1" in cut["hstop"].runs_used
     plain = by(fit_campaign(with_odd, n_bootstrap=10, include_eq38=False))
     assert "odd0" in plain["alpha"].runs_used and "odd0" in plain["density"].runs_used
+
+
+def test_steady_runs_still_creeping_are_named_in_the_selections():
+    """A run called steady while its tail still trended (state_confidence < CREEP_CONFIDENCE,
+    which the classifier's confidence = min(1, N_eff/50) min(1, p/0.2) ties to a tail-trend
+    p below it) is named in the selection of every steady closure that used it; runs above the
+    threshold, and tables without the column, give no such sentence."""
+    from granflow.fitting.campaign import CREEP_CONFIDENCE, creeping_steady_runs
+
+    table = synthetic_campaign(np.random.default_rng(7))
+    steady = table.index[(table["state"] == "steady") & (table["lam"] == 1.0)
+                         & np.isfinite(table["F"].to_numpy(float))]
+    creep = list(table.loc[steady[[0, 3]], "run"])
+    conf = np.where(table["run"].isin(creep), 0.5 * CREEP_CONFIDENCE, 0.9)
+    # an arrested run with a low confidence is no steady call: never named
+    conf[int(np.flatnonzero(table["state"] == "arrested")[0])] = 0.0
+    flagged = table.assign(state_confidence=conf)
+    assert creeping_steady_runs(flagged) == creep
+    assert creeping_steady_runs(table) == []
+    fits = {(f.kind, f.coords.get("lam")): f for f in fit_campaign(flagged, n_bootstrap=5)}
+    for kind in ("flow_rule", "alpha", "density", "stress_ratio"):
+        sel = fits[(kind, 1.0 if kind in ("flow_rule", "alpha") else None)].selection
+        assert "2 of the used runs were called steady while their tail still trended" in sel, sel
+        assert all(r in sel for r in creep), sel
+    at_margin = flagged.assign(state_confidence=np.where(conf < 0.9, CREEP_CONFIDENCE, 0.9))
+    fr = next(f for f in fit_campaign(at_margin, n_bootstrap=5)
+              if f.kind == "flow_rule" and f.coords.get("lam") == 1.0)
+    assert "still trended" not in fr.selection

@@ -244,7 +244,34 @@ def describe_selection(what: str, pool: pd.DataFrame, used: np.ndarray, left_out
     if left_out:
         parts.append("left out: " + ", ".join(f"{n} {why}" for why, n in sorted(left_out.items())))
     parts.append(weighting)
+    creeping = creeping_steady_runs(used_runs)
+    if creeping:
+        parts.append(
+            f"{len(creeping)} of the used runs were called steady while their tail still trended "
+            f"(state_confidence < {CREEP_CONFIDENCE:g}, so a tail-trend p-value below "
+            f"{CREEP_CONFIDENCE:g}, inside the monitor's +-20 % equivalence margin: "
+            f"{', '.join(creeping)}); their means may carry a creep bias of a few per cent that "
+            "their stderrs do not include")
     return "; ".join(parts)
+
+
+#: A run called steady with a state confidence below this is flagged as still creeping.  The
+#: classifier's steady confidence is min(1, N_eff / 50) * min(1, p / 0.2) with N_eff >= 10
+#: (:mod:`granflow.steady.classify`), so a confidence below c implies a tail-trend p-value below
+#: c: the trend is significant but smaller than the 20 % equivalence margin that let the run
+#: stop.  Continuing such runs moved their 100-unit means by up to about 5 % (README: the
+#: stricter early stop measured on ten runs with continuations).
+CREEP_CONFIDENCE = 0.01
+
+
+def creeping_steady_runs(runs: pd.DataFrame) -> list[str]:
+    """The ids of the steady runs of ``runs`` whose steady call has a significant tail trend
+    (``state_confidence`` < :data:`CREEP_CONFIDENCE`); empty without that column."""
+    conf = _col(runs, "state_confidence")
+    if conf is None or "state" not in runs.columns:
+        return []
+    flag = (runs["state"].astype(str).to_numpy() == "steady") & (conf < CREEP_CONFIDENCE)
+    return [str(i) for i in _ids(runs[flag])]
 
 
 def _state_counts(runs: pd.DataFrame, keep_states=("steady",)) -> Counter:
