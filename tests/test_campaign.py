@@ -97,7 +97,7 @@ def test_default_campaign_covers_every_closure():
     assert "collision time" not in text and "chute box 10 x 5" in text
     # ... with the box's measured effect on thin layers (granflow.reference.BOX_EFFECT)
     assert ("in the paper's 20 x 10 box F is -11 to -12 % at lambda = 1/2" in text
-            and "-12 to -13 % at H = 20, 26-28 deg" in text and "-2 to -6 % at lambda = 1" in text
+            and "-12 to -13 % at H = 20, 26-28 deg, -9 % at H = 30, 27 deg" in text and "-2 to -6 % at lambda = 1" in text
             and "up to 14 % at H = 10" in text), text
     other_box = copy.deepcopy(cfg)
     other_box["campaigns"]["chute"].update(Lx=12.0, Ly=6.0)

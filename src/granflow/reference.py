@@ -359,7 +359,9 @@ def snapshot_interval_note(interval_tc: float) -> str:
 #: The chute box against the paper's 20 x 10, measured on disordered layers (H = 10; at lambda =
 #: 1/2 also H = 20, ``F_change_H20``: 27 deg against two 10 x 5 bases, 26 and 28 deg against the
 #: reference's 10 x 5 runs continued to t = 2000, their 20 x 10 runs restarted from the 27 deg
-#: state, session 33) with
+#: state, session 33; and H = 30, ``F_change_H30``: 27 deg, the reference's 10 x 5 run continued
+#: to its settled value against a 20 x 10 run topped up from the H = 20 state and run to t = 2000
+#: in all, session 34) with
 #: the paper's species and run parameters, one run per box and base (README "Why gamma is off at
 #: lambda = 1/2"; lambda = 1: README, the lambda = 1 reference's flow rule).  ``F_change``: F in
 #: 20 x 10 relative to 10 x 5 (at lambda = 1/2 against the mean of three 10 x 5 bases), per
@@ -369,7 +371,8 @@ BOX_EFFECT = {
     "box": (10.0, 5.0),
     0.5: {"H": 10.0, "F_change": {27.0: -0.114, 28.0: -0.120}, "alpha": ((1.115, 1.129),
                                                                           (1.138, 1.142)),
-          "base_span": 0.14, "F_change_H20": {26.0: -0.120, 27.0: -0.123, 28.0: -0.132}},
+          "base_span": 0.14, "F_change_H20": {26.0: -0.120, 27.0: -0.123, 28.0: -0.132},
+          "F_change_H30": {27.0: -0.090}},
     1.0: {"H": 10.0, "F_change": {26.0: -0.055, 28.0: -0.019}},
 }
 
@@ -385,10 +388,12 @@ def box_effect_note(Lx: float, Ly: float) -> str:
     c1 = sorted(one["F_change"].values())
     (a_lo, a_hi), (b_lo, b_hi) = half["alpha"]
     h20 = sorted(half["F_change_H20"].values())
+    h30 = half["F_change_H30"][27.0]
     return (f"; measured (granflow.reference.BOX_EFFECT) on layers of H = 10 at the paper's "
             f"species: in the paper's 20 x 10 box F is {100 * ch[-1]:+.0f} to {100 * ch[0]:+.0f} % "
             f"at lambda = 1/2 (27, 28 deg, against the mean of three 10 x 5 bases; "
-            f"{100 * h20[-1]:+.0f} to {100 * h20[0]:+.0f} % at H = 20, 26-28 deg) and "
+            f"{100 * h20[-1]:+.0f} to {100 * h20[0]:+.0f} % at H = 20, 26-28 deg, "
+            f"{100 * h30:+.0f} % at H = 30, 27 deg) and "
             f"{100 * c1[-1]:+.0f} to {100 * c1[0]:+.0f} % at lambda = 1, alpha {b_lo:g}-{b_hi:g} "
             f"against {a_lo:g}-{a_hi:g} at lambda = 1/2, and one 10 x 5 base moves F at "
             f"lambda = 1/2 by up to {100 * half['base_span']:.0f} % at H = 10: at lambda <= 1/2 "
