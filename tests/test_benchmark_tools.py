@@ -612,3 +612,28 @@ def test_flow_rule_runs_recovers_table_1_from_runs_on_its_law(tmp_path, capsys):
     assert "alpha: 1.1420 +- 0.0016 (mean, sd of 5) against Table 2's 1.142 (+0.0 %)" in out
     with pytest.raises(SystemExit, match="need 0 < delta1 < delta2 < 90"):
         frr.main(dirs + ["--hstop", "30", "20", "3"])
+
+
+def test_particle_order_curves_are_permutations_that_step_to_grid_neighbours():
+    """benchmarks/bench_particle_order.py's orders: the Hilbert index of an 8 x 8 grid visits
+    every cell once, each step to an edge neighbour (the curve's defining property); every
+    order of random particles is a permutation whose column keys never decrease."""
+    bo = _load("bench_particle_order")
+    gx, gy = np.meshgrid(np.arange(8), np.arange(8), indexing="ij")
+    d = bo._hilbert_index(8, gx.ravel(), gy.ravel())
+    assert sorted(d) == list(range(64))
+    path = np.empty((64, 2), int)
+    path[d] = np.c_[gx.ravel(), gy.ravel()]
+    assert np.all(np.abs(np.diff(path, axis=0)).sum(axis=1) == 1)
+    m = bo._part1by1(np.arange(4))
+    assert list(m) == [0, 1, 4, 5]  # bits spread to the even positions
+    rng = np.random.default_rng(3)
+    pos = rng.random((500, 3)) * [16.0, 8.0, 10.0]
+    for kind in ("xyz", "yxz", "morton", "hilbert"):
+        o = bo.order(pos, 16.0, 8.0, kind)
+        assert sorted(o) == list(range(500)), kind
+    o = bo.order(pos, 16.0, 8.0, "xyz")
+    col = np.floor(pos[o, 0]).astype(int) * 8 + np.floor(pos[o, 1]).astype(int)
+    assert np.all(np.diff(col) >= 0)
+    with pytest.raises(ValueError):
+        bo.order(pos, 16.0, 8.0, "random")
