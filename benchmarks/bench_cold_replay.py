@@ -64,6 +64,16 @@ def gather_packed(ci, cj, p):
     return t
 
 
+@njit(inline="always")
+def _touches(pos, rad, i, j):
+    """Whether particles i and j overlap (the scan's test; no periodic image: a replay)."""
+    dx = pos[i, 0] - pos[j, 0]
+    dy = pos[i, 1] - pos[j, 1]
+    dz = pos[i, 2] - pos[j, 2]
+    rs = rad[i] + rad[j]
+    return (dx * dx + dy * dy + dz * dz) < rs * rs
+
+
 @njit
 def scan_by_pair_index(near, pi, pj, pos, rad):
     t = 0
@@ -71,11 +81,7 @@ def scan_by_pair_index(near, pi, pj, pos, rad):
         p = near[k]
         i = pi[p]
         j = pj[p]
-        dx = pos[i, 0] - pos[j, 0]
-        dy = pos[i, 1] - pos[j, 1]
-        dz = pos[i, 2] - pos[j, 2]
-        rs = rad[i] + rad[j]
-        t += (dx * dx + dy * dy + dz * dz) < rs * rs
+        t += _touches(pos, rad, i, j)
     return t
 
 
@@ -85,11 +91,7 @@ def scan_direct(ni, nj, pos, rad):
     for k in range(ni.shape[0]):
         i = ni[k]
         j = nj[k]
-        dx = pos[i, 0] - pos[j, 0]
-        dy = pos[i, 1] - pos[j, 1]
-        dz = pos[i, 2] - pos[j, 2]
-        rs = rad[i] + rad[j]
-        t += (dx * dx + dy * dy + dz * dz) < rs * rs
+        t += _touches(pos, rad, i, j)
     return t
 
 
