@@ -31,6 +31,14 @@ SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 check_config(config, SCHEMA)
 validate(config, str(SCHEMA))
 
+# a global numerics key that a --configfile changed but the default's campaign block still
+# overrides (granflow.campaign.config.shadowed_numerics) is said before any job runs
+from granflow.campaign.config import load_yaml, shadowed_numerics
+from snakemake.logging import logger
+
+for _msg in shadowed_numerics(config, load_yaml(REPO / "config" / "config.yaml")):
+    logger.warning(f"granflow config: {_msg}")
+
 # ACDD attribution (creator, institution, license, ...) of every output: passed to the jobs in
 # the environment, not as a parameter, so that changing it reruns no simulation
 from granflow.cfconventions import ATTRIBUTION_ENV

@@ -665,9 +665,19 @@ def test_reference_configurations_are_the_papers_setups(name):
     assert (sp["t_c"], sp["e"], sp["mu_c"], sp["gt_over_gn"]) == (0.005, 0.88, 0.5, 1.0)
     assert sp["kt_over_kn"] == pytest.approx(2 / 7)
     assert cfg["numerics"]["steps_per_collision"] == 50
-    assert cfg["numerics"]["t_end"] == (6000.0 if name == "reference-segregation.yaml" else 2000.0)
     assert cfg["base"]["layers"] == 12.0
     runs = G.expand_runs(cfg)
+    # what the runs get, in the configuration Snakemake merges (the default under the reference):
+    # a global numerics key that the default's campaign block overrides never reaches a run
+    # (the segregation reference's t_end 6000 did not, until 2026-11-29: its runs capped at 1500)
+    full = merged("config.yaml", name)
+    seg_ref = name == "reference-segregation.yaml"
+    want = ({"t_end": 6000.0, "averaging_time": 200.0, "cg_window": 50.0, "early_stop": True}
+            if seg_ref else {"t_end": 2000.0, "averaging_time": 100.0})
+    main_kind = "segregation" if seg_ref else "chute"
+    got = G.run_params(full, next(r for r in G.expand_runs(full) if r.kind == main_kind))
+    assert {k: got[k] for k in want} == want
+    assert (got["t_c"], got["steps_per_collision"]) == (0.005, 50.0)
     if name == "reference-segregation.yaml":
         seg = [r for r in runs if r.kind == "segregation"]
         s = cfg["campaigns"]["segregation"]
@@ -683,6 +693,34 @@ def test_reference_configurations_are_the_papers_setups(name):
         assert len({r.H for r in runs}) >= 3  # the flow rule from several heights
         # the flow inserted at the paper's (its code's) column, not the text's 0.01
         assert cfg["numerics"]["insertion_growth"] == 5e-5
+
+
+def test_global_numerics_shadowed_by_the_defaults_campaign_block_are_named():
+    """A --configfile that changes a global numerics key which the default's campaign block
+    overrides (the segregation reference's t_end 6000 against the default segregation block's
+    1500, before 2026-11-29) is named with the key to set instead; the shipped configurations
+    have none, and a key set in the campaign block itself is not reported."""
+    from granflow.campaign.commands import _merge
+    from granflow.campaign.config import shadowed_numerics
+
+    default = load("config.yaml")
+    for name in ["reference-lambda1.yaml", "reference-lambda-half.yaml",
+                 "reference-segregation.yaml", "weinhart2012.yaml", "continuum-soft.yaml",
+                 "replicates.yaml", "segregation-sweep.yaml", "test-tiny.yaml"]:
+        assert shadowed_numerics(merged("config.yaml", name), default) == [], name
+    user = {"numerics": {"t_end": 6000.0, "averaging_time": 200.0, "skin": 0.1}}
+    cfg = merged("config.yaml")
+    _merge(cfg, copy.deepcopy(user))
+    msgs = shadowed_numerics(cfg, default)
+    seg_keys = sorted((default["campaigns"]["segregation"].get("numerics") or {}))
+    assert {"t_end", "averaging_time"} <= set(seg_keys)
+    assert msgs == [m for m in msgs if "segregation runs" in m]
+    assert [m.split(" ")[0] for m in msgs] == ["numerics.averaging_time", "numerics.t_end"]
+    assert "set campaigns.segregation.numerics.t_end" in msgs[1]
+    # set where it applies: nothing to report
+    _merge(cfg, {"campaigns": {"segregation": {"numerics": {"t_end": 6000.0,
+                                                            "averaging_time": 200.0}}}})
+    assert shadowed_numerics(cfg, default) == []
 
 
 def test_disordered_window_in_the_reference_and_bad_windows_refused():

@@ -327,6 +327,35 @@ def check_config(config: dict, schema, check_machine: bool = True) -> dict:
     return config
 
 
+def shadowed_numerics(config: dict, default: dict) -> list[str]:
+    """Global ``numerics`` keys a configuration changed that never reach some of its runs.
+
+    A campaign's own ``numerics`` block overrides the global one key by key
+    (:func:`granflow.campaign.grid.run_params`), and Snakemake merges a ``--configfile`` over
+    the embedded default (``config/config.yaml``), whose campaign blocks set keys of their own
+    (the segregation block's ``t_end``, ``averaging_time``, ``cg_window``).  A key the merged
+    ``config`` sets globally to something other than ``default`` does, while an enabled
+    campaign keeps the default's own override of it, is silently not applied to that
+    campaign's runs: one message per such key and campaign, naming the key to set instead.
+    """
+    g_new = config.get("numerics") or {}
+    g_old = default.get("numerics") or {}
+    out = []
+    for kind in ("chute", "segregation"):
+        if not enabled(config, kind):
+            continue
+        c_new = campaign_cfg(config, kind).get("numerics") or {}
+        c_old = campaign_cfg(default, kind).get("numerics") or {}
+        for key in sorted(set(g_new) & set(c_new)):
+            changed = key not in g_old or g_old[key] != g_new[key]
+            kept = key in c_old and c_old[key] == c_new[key]
+            if changed and kept and c_new[key] != g_new[key]:
+                out.append(f"numerics.{key} = {g_new[key]!r} does not reach the {kind} runs: "
+                           f"the default's campaigns.{kind}.numerics.{key} = {c_new[key]!r} "
+                           f"overrides it; set campaigns.{kind}.numerics.{key} to change it")
+    return out
+
+
 def default_schema_path() -> Path:
     """The workflow schema next to the source tree (for checks outside Snakemake)."""
     here = Path(__file__).resolve()
