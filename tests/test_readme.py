@@ -61,6 +61,11 @@ README_COMMANDS = {
         ("tests/test_readme.py::test_campaign_commands_plan_their_runs", "dry run (-n)"),
     ".venv/bin/snakemake --workflow-profile profiles/local":
         ("tests/test_readme.py::test_campaign_commands_plan_their_runs", "dry run (-n)"),
+    ".venv/bin/snakemake results/reference-segregation/segregation/linear/lambda~1/theta~25/"
+    "H~24.009603841536613/sigma~0.5/row.json --cores 1 --configfile "
+    "config/reference-segregation.yaml":
+        ("tests/test_readme.py::test_campaign_commands_plan_their_runs",
+         "dry run (-n): the one run and its base"),
     "sudo bash workflow/cluster/local-slurm.sh install":
         ("tests/test_cluster.py::test_local_slurm_script_is_idempotent",
          "pytest -m cluster, as root; install finds the packages installed"),
@@ -241,7 +246,10 @@ def test_running_one_chute_block(tmp_path):
     # runs of the bisection chains are planned as the chains go)
     (".venv/bin/snakemake --cores 2 --configfile config/segregation-sweep.yaml", None, 5),
     (".venv/bin/snakemake --cores 2 --configfile config/test-tiny-lammps.yaml", None, 6),
-    (".venv/bin/snakemake --workflow-profile profiles/local", None, 8)])
+    (".venv/bin/snakemake --workflow-profile profiles/local", None, 8),
+    (".venv/bin/snakemake results/reference-segregation/segregation/linear/lambda~1/theta~25/"
+     "H~24.009603841536613/sigma~0.5/row.json --cores 1 --configfile "
+     "config/reference-segregation.yaml", None, 1)])
 def test_campaign_commands_plan_their_runs(cmd, configfile, n_simulate, tmp_path):
     """The README's campaign commands, as dry runs in a scratch directory: they parse, pass the
     configuration checks and plan the campaign's runs."""

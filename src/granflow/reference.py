@@ -299,6 +299,23 @@ SEGREGATION_REDUCTION_EFFECT = {
     "lower_bounds": {(10.0, 16.0, 0.005), (40.0, 8.0, 0.005)},
 }
 
+#: Ps measured at the paper's segregation set-up itself (config/reference-segregation.yaml at
+#: 80e1669, 2026-11-29: 83.3 x 5 box, 5000 small particles, depth 24, 25 deg, the paper's
+#: species, 12-layer base of fixed small particles): 1/sigma = 2, two insertion seeds, each
+#: stopped once its segregated state was shown steady (t = 1221 and 1251), T-eq. (28) on the
+#: steady phi(z), stderr of the mean over decorrelated windows; flow height h of each run.
+#: The law T-eq. (29) gives 7.35 (1 - e^-5.21) = 7.31: both seeds lie 6.8 % below it, 0.15 %
+#: apart, so the difference is not the seed (it is 2.0x the 95 % interval's half-width of one
+#: run's fit, +-0.25, and 1.8 points beyond the issue's 5 %).  Not tested: the paper's base (fixed
+#: small particles added randomly to a flat surface) and its scaling of depth (Ps is per unit
+#: scaled depth: the same profile scaled by a layer 7 % thicker, h 23.4 instead of 21.9, gives
+#: the law's value).
+SEGREGATION_PAPER_SETUP = {
+    "sigma": 0.5, "law": 7.35 * (1.0 - math.exp(-5.21)),
+    "Ps": {1: (6.821, 0.032), 2: (6.811, 0.013)},  # seed -> (Ps, stderr)
+    "h": {1: 21.87, 2: 21.88},
+}
+
 
 def segregation_reduction_note(H: float) -> str:
     """What :data:`SEGREGATION_REDUCTION_EFFECT` says a segregation sweep at filling height ``H``
@@ -308,12 +325,16 @@ def segregation_reduction_note(H: float) -> str:
     ps = SEGREGATION_REDUCTION_EFFECT["Ps"]
     (p8, s8), (pl, sl) = ps[(10.0, 8.0, 0.005)], ps[(40.0, 8.0, 0.005)]
     deep = ps[(10.0, 16.0, 0.005)]
+    ref, law = SEGREGATION_PAPER_SETUP["Ps"], SEGREGATION_PAPER_SETUP["law"]
     return (f"measured at sigma = 0.6, 25 deg, the paper's species: Ps {p8:g} +- {s8:g} at depth 8 in a "
             f"10 x 5 box, >= {pl:g} +- {sl:g} in a 40 x 5 box, >= {deep[0]:g} +- {deep[1]:g} at depth 16 "
             "(both not shown steady by the present rule at their end, t = 351 and 800) "
             f"(paper law: 7.12 at depth 24, 83.3 x 5); {ps[(10.0, 8.0, 0.02)][0]:g} at depth 8 with "
             "t_c = 0.02: the depth sets Ps, not the box length or the stiffness "
-            "(granflow.reference.SEGREGATION_REDUCTION_EFFECT); Ps and Pmax of a shallower sweep "
+            "(granflow.reference.SEGREGATION_REDUCTION_EFFECT); at the paper's set-up itself "
+            f"(depth 24, 83.3 x 5) 1/sigma = 2 gives Ps {ref[1][0]:g} and {ref[2][0]:g} (two seeds; "
+            f"law {law:.2f}: {100 * (0.5 * (ref[1][0] + ref[2][0]) / law - 1):+.1f} %, "
+            "granflow.reference.SEGREGATION_PAPER_SETUP); Ps and Pmax of a shallower sweep "
             "are not the paper's")
 
 
