@@ -120,6 +120,10 @@ def test_default_campaign_covers_every_closure():
     deep = dict(cfg, campaigns=dict(cfg["campaigns"], segregation=dict(
         cfg["campaigns"]["segregation"], H=24.0)))
     assert "the depth sets Ps" not in reductions_vs_paper(deep)
+    # ... and every segregation campaign says Ps is per scaled depth, with the measured scaling
+    for t in (text, reductions_vs_paper(deep)):
+        assert ("Ps / depth = 0.308-0.314 per d over windows 19.9-24.0 d deep, so 1 d of depth "
+                "moves Ps by 4.6 %") in t and "scaled by 23.5 d" in t, t
     # ... a softer species carries the bias measured against it (F at 23 deg: 0.1761 vs 0.1250)
     soft = dict(cfg, species=dict(cfg["species"], t_c=0.02))
     text = reductions_vs_paper(soft)

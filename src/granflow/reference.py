@@ -307,14 +307,44 @@ SEGREGATION_REDUCTION_EFFECT = {
 #: The law T-eq. (29) gives 7.35 (1 - e^-5.21) = 7.31: both seeds lie 6.8 % below it, 0.15 %
 #: apart, so the difference is not the seed (it is 2.0x the 95 % interval's half-width of one
 #: run's fit, +-0.25, and 1.8 points beyond the issue's 5 %).  Not tested: the paper's base (fixed
-#: small particles added randomly to a flat surface) and its scaling of depth (Ps is per unit
-#: scaled depth: the same profile scaled by a layer 7 % thicker, h 23.4 instead of 21.9, gives
-#: the law's value).
+#: small particles added randomly to a flat surface).
+#:
+#: ``window``: the depth over which z is scaled to [0, 1] (measured 2026-11-29 on the same two
+#: runs' steady profiles, T-eq. 28 refitted with phi0 the profile's mean; seed 1, seed 2 within
+#: 0.2 %): window name -> (its depth in d, Ps).  Ps is per unit *scaled* depth, so it grows with
+#: the window: Ps / depth = 0.308-0.314 per d over windows 19.9-24.0 d deep (the sharp interface,
+#: 1 / 0.312 = 3.2 d wide, is what the profile fixes).  The paper does not say how it scaled
+#: depth (002 Fig. 8: "scaled depth"); the law's 7.31 is this profile scaled by 23.5 d.  A 5 %
+#: comparison of Ps therefore needs the paper's depth definition to 1.1 d; fixing phi0 = 0.5
+#: instead of the profile's mean moves Ps by < 0.1 %.
 SEGREGATION_PAPER_SETUP = {
     "sigma": 0.5, "law": 7.35 * (1.0 - math.exp(-5.21)),
     "Ps": {1: (6.821, 0.032), 2: (6.811, 0.013)},  # seed -> (Ps, stderr)
     "h": {1: 21.87, 2: 21.88},
+    "window": {
+        "[b, s] of Eq. (42) (granflow's)": (21.87, 6.821),
+        "[z1, z2] of Eq. (42) (its thresholds)": (21.43, 6.662),
+        "[b + 1, s - 1]": (19.87, 6.120),
+        "total volume fraction above half its bulk value": (21.55, 6.708),
+        "[b, b + 24.01] (the nominal filling height)": (24.01, 7.551),
+    },
 }
+
+
+def segregation_depth_note() -> str:
+    """What :data:`SEGREGATION_PAPER_SETUP` measured about the depth Ps is scaled by (stated
+    for every segregation campaign: it holds whatever the set-up)."""
+    w = SEGREGATION_PAPER_SETUP["window"]
+    per = [ps / h for h, ps in w.values()]
+    hs = [h for h, _ in w.values()]
+    law = SEGREGATION_PAPER_SETUP["law"]
+    mean = sum(per) / len(per)
+    return (f"Ps is per unit scaled depth, here Eq. (42)'s flow height (the paper does not say "
+            f"which depth it scaled by): at the paper's set-up Ps / depth = {min(per):.3f}-"
+            f"{max(per):.3f} per d over windows {min(hs):.1f}-{max(hs):.1f} d deep, so 1 d of "
+            f"depth moves Ps by {100 / SEGREGATION_PAPER_SETUP['h'][1]:.1f} % and the law's "
+            f"{law:.2f} at 1/sigma = 2 is that profile scaled by {law / mean:.1f} d "
+            "(granflow.reference.SEGREGATION_PAPER_SETUP)")
 
 
 def segregation_reduction_note(H: float) -> str:
