@@ -783,3 +783,37 @@ def test_restart_from_neighbour_with_lammps_is_refused_naming_the_key():
     assert len(errs) == 1 and "allowed: false, or engine 'numba'" in errs[0]
     cfg["campaigns"]["chute"]["restart_from_neighbour"] = False
     assert not [e for e in semantic_errors(cfg) if "restart_from_neighbour" in e]
+
+
+@pytest.mark.parametrize("depth", [16.0, 22.0])
+def test_segregation_fit_recovers_Ps_and_the_depth_it_is_per(tmp_path, depth):
+    """A run's profiles.nc built from T-eq. (28) at Ps = 6 over a layer of known depth (sigma_zz
+    linear from the base at z = 0 to the surface at z = depth, Eq. 42's b and s): the fit gets
+    Ps back within 2 % and states the depth it is per (``scaled_depth``), to 0.05 d (one grid
+    step)."""
+    import xarray as xr
+
+    from granflow.campaign.collect import segregation_fit
+    from granflow.fitting.segregation import phi_teq28
+
+    z = np.arange(-2.0, depth + 6.0, 0.05)
+    inside = (z >= 0) & (z <= depth)
+    phi = np.where(inside, phi_teq28(np.clip(z / depth, 0, 1), 6.0, 0.5), np.nan)
+    nu_tot = np.where(inside, 0.58, 0.0)
+    nu = np.stack([np.nan_to_num(phi) * nu_tot, (1 - np.nan_to_num(phi)) * nu_tot])  # (s, z)
+    szz = np.where(inside, 0.58 * (depth - z), 0.0)
+    n_w = 4
+    ds = xr.Dataset(
+        {"species_volume_fraction_window": (("window", "species", "z"),
+                                            np.repeat(nu[None], n_w, axis=0)),
+         "stress_zz_window": (("window", "z"), np.repeat(szz[None], n_w, axis=0)),
+         "window_n_snapshots": (("window",), np.full(n_w, 25.0)),
+         "window_time_start": (("window",), 100.0 + 50.0 * np.arange(n_w))},
+        coords={"z": z},
+        attrs={"t_final": 300.0, "segregation_state": "steady", "profile_time_from": 100.0,
+               "cg_small_species": 0})
+    ds.to_netcdf(tmp_path / "profiles.nc")
+    fit, spread, profile = segregation_fit(tmp_path, 0.5, "linear", window=100.0)
+    assert fit.ok and fit.params["Ps"] == pytest.approx(6.0, rel=0.02), fit.params
+    assert fit.extra["scaled_depth"] == pytest.approx(depth, abs=0.05)
+    assert fit.extra["scaled_depth"] == pytest.approx(profile["surface"] - profile["base"])

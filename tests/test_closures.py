@@ -60,7 +60,8 @@ def make_fits(contact_law="linear"):
     for sigma in (0.5, 0.8):
         r = _fit("segregation", {"Ps": float(Ps_teq29(sigma, 7.35, 5.21))}, sigma=sigma,
                  contact_law=contact_law, ranges={"z": (0.0, 1.0)})
-        fits.append(FitResult(**{**r.__dict__, "extra": {"phi0": 0.5, "ci95": (6.9, 7.7)}}))
+        fits.append(FitResult(**{**r.__dict__, "extra": {"phi0": 0.5, "ci95": (6.9, 7.7),
+                                                        "scaled_depth": 21.87}}))
     return fits
 
 
@@ -105,6 +106,9 @@ def test_write_read_round_trip_is_exact(lib_path):
     assert lib["hstop_delta2"].sel({"lambda": 1.0, "contact_law": "linear"}).item() == 32.780
     assert lib["hstop_A_stderr"].sel({"lambda": 1.0}).item() == pytest.approx(0.03355, rel=1e-15)
     assert lib["segregation_Ps_ci95_low"].sel(sigma=0.5).item() == 6.9
+    # the depth Ps is per travels with it, with its units
+    assert lib["segregation_scaled_depth"].sel(sigma=0.8).item() == 21.87
+    assert "scaled" in lib["segregation_scaled_depth"].attrs["long_name"]
     for name, var in lib.data_vars.items():
         assert "long_name" in var.attrs, name
         if var.dtype.kind in "fiu" and var.dims != ("run",):  # numbers carry units

@@ -126,7 +126,9 @@ KINDS = {
         {"Ps": (U.DIMENSIONLESS, "segregation Peclet number Ps")}, U.DIMENSIONLESS,
         {"z": (U.DIMENSIONLESS, "scaled depth z")},
         {"phi0": (U.DIMENSIONLESS, "mean small-particle volume fraction phi0"),
-         "ci95": (U.DIMENSIONLESS, "95% confidence interval of Ps")}),
+         "ci95": (U.DIMENSIONLESS, "95% confidence interval of Ps"),
+         "scaled_depth": (U.LENGTH, "depth s - b of Eq. (42) over which z is scaled to [0, 1] "
+                                    "(Ps is per unit scaled depth)")}),
     "segregation_asymmetric": KindSpec(
         (CONTACT_LAW_DIM, SIGMA_DIM), "Gajjar & Gray 2014 asymmetric flux (seed 001 Eq. 2.9)",
         {"Ps": (U.DIMENSIONLESS, "segregation Peclet number Ps (asymmetric flux)"),
