@@ -120,6 +120,8 @@ def test_default_campaign_covers_every_closure():
     deep = dict(cfg, campaigns=dict(cfg["campaigns"], segregation=dict(
         cfg["campaigns"]["segregation"], H=24.0)))
     assert "the depth sets Ps" not in reductions_vs_paper(deep)
+    # ... with what the paper's set-up itself gave (T-eq. 29 at 1/sigma = 2: 7.35 (1 - e^-5.21))
+    assert "1/sigma = 2 gives Ps 6.821 and 6.811 (2 seeds; law 7.31: -6.8 %)" in text, text
     # ... and every segregation campaign says Ps is per scaled depth, with the measured scaling
     for t in (text, reductions_vs_paper(deep)):
         assert ("Ps / depth = 0.308-0.314 per d over windows 19.9-24.0 d deep, so 1 d of depth "

@@ -328,6 +328,13 @@ SEGREGATION_PAPER_SETUP = {
         "total volume fraction above half its bulk value": (21.55, 6.708),
         "[b, b + 24.01] (the nominal filling height)": (24.01, 7.551),
     },
+    # the size-ratio sweep at the same set-up, one run per (1/sigma, seed), each stopped once
+    # its segregated state was shown steady: 1/sigma -> [(Ps, stderr, scaled depth h, t at the
+    # stop, CPU seconds)]; law T-eq. 29 with the paper's Pmax 7.35, k 5.21
+    "sweep": {
+        2.0: [(6.821, 0.032, 21.87, 1221.0, 2788.0), (6.811, 0.013, 21.88, 1251.0, 2940.0)],
+        1.5: [(6.539, 0.054, 22.28, 2051.0, 5413.0)],
+    },
 }
 
 
@@ -355,17 +362,30 @@ def segregation_reduction_note(H: float) -> str:
     ps = SEGREGATION_REDUCTION_EFFECT["Ps"]
     (p8, s8), (pl, sl) = ps[(10.0, 8.0, 0.005)], ps[(40.0, 8.0, 0.005)]
     deep = ps[(10.0, 16.0, 0.005)]
-    ref, law = SEGREGATION_PAPER_SETUP["Ps"], SEGREGATION_PAPER_SETUP["law"]
     return (f"measured at sigma = 0.6, 25 deg, the paper's species: Ps {p8:g} +- {s8:g} at depth 8 in a "
             f"10 x 5 box, >= {pl:g} +- {sl:g} in a 40 x 5 box, >= {deep[0]:g} +- {deep[1]:g} at depth 16 "
             "(both not shown steady by the present rule at their end, t = 351 and 800) "
             f"(paper law: 7.12 at depth 24, 83.3 x 5); {ps[(10.0, 8.0, 0.02)][0]:g} at depth 8 with "
             "t_c = 0.02: the depth sets Ps, not the box length or the stiffness "
             "(granflow.reference.SEGREGATION_REDUCTION_EFFECT); at the paper's set-up itself "
-            f"(depth 24, 83.3 x 5) 1/sigma = 2 gives Ps {ref[1][0]:g} and {ref[2][0]:g} (two seeds; "
-            f"law {law:.2f}: {100 * (0.5 * (ref[1][0] + ref[2][0]) / law - 1):+.1f} %, "
-            "granflow.reference.SEGREGATION_PAPER_SETUP); Ps and Pmax of a shallower sweep "
+            f"(depth 24, 83.3 x 5) {paper_setup_sweep_text()} "
+            "(granflow.reference.SEGREGATION_PAPER_SETUP); Ps and Pmax of a shallower sweep "
             "are not the paper's")
+
+
+def paper_setup_sweep_text() -> str:
+    """The measured Ps of :data:`SEGREGATION_PAPER_SETUP`'s sweep against T-eq. (29) with the
+    paper's Pmax and k, one clause per size ratio (seeds' Ps, law, mean deviation)."""
+    parts = []
+    for inv in sorted(SEGREGATION_PAPER_SETUP["sweep"]):
+        runs = SEGREGATION_PAPER_SETUP["sweep"][inv]
+        law = 7.35 * -math.expm1(-5.21 * (inv - 1.0))
+        mean = sum(r[0] for r in runs) / len(runs)
+        seeds = " and ".join(f"{r[0]:g}" for r in runs)
+        parts.append(f"1/sigma = {inv:g} gives Ps {seeds} ({len(runs)} seed"
+                     f"{'s' if len(runs) > 1 else ''}; law {law:.2f}: "
+                     f"{100 * (mean / law - 1):+.1f} %)")
+    return ", ".join(parts)
 
 
 #: Measured effect of the coarse-graining snapshot interval (granflow at fd7b2f5, 2026-11-27):
