@@ -486,6 +486,9 @@ for law in laws:
         if r.form == "linear" and lb is not None:
             axes[1].axhline(lb, color="0.4", ls="-.", lw=0.8,
                             label=f"Pmax ≥ {lb:.2f} (95 % lower bound from the data)")
+        kb = r.extra.get("k_lower_bound")
+        if r.form == "plateau" and kb is not None:
+            axes[1].plot([], [], " ", label=f"saturated: k ≥ {kb:.2f} (95 % lower bound)")
     else:
         axes[1].text(0.02, 0.9, "Ps(σ) law: " + (r.message if r is not None else "not fitted"),
                      transform=axes[1].transAxes, fontsize=7, wrap=True)

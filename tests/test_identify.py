@@ -268,6 +268,48 @@ def test_Ps_still_linear_in_inverse_sigma_gives_slope_and_a_lower_bound_on_Pmax(
     assert abs(full.params["Pmax"] - 7.35) < 3 * full.stderr["Pmax"]
 
 
+def test_Ps_saturated_over_the_sweep_gives_the_plateau_and_a_lower_bound_on_k(tmp_path):
+    """The paper's segregation set-up at 1/sigma = 1.5, 1.75, 2, 2 (measured 2026-11-29: Ps
+    6.539, 7.345, 6.821, 6.811 +- 0.054, 0.037, 0.032, 0.013): every ratio already on T-eq.
+    29's plateau, so k is not identified -- and the linear reduced form, weighted chi-square
+    6612 for 3 degrees of freedom, was kept as "reduced" (slope 7.04 +- 0.53).  Now the plateau
+    form Ps = Pmax is kept (the smaller chi-square of the two one-parameter forms), with a
+    one-sided bound on k from the ratio of the end points (Birge-inflated stderrs); the
+    library evaluates it as the constant."""
+    from granflow.fitting.segregation import k_lower_bound
+
+    inv = np.array([1.5, 1.75, 2.0, 2.0])
+    Ps = np.array([6.539, 7.345, 6.821, 6.811])
+    se = np.array([0.054, 0.037, 0.032, 0.013])
+    fit = fit_Ps_law(1 / inv, Ps, se)
+    assert (fit.status, fit.form) == ("reduced", "plateau"), fit.message
+    assert fit.param_status["k"] == "not_in_form" and math.isnan(fit.params["k"])
+    assert fit.diagnostics["chi2"] < 0.05 * 6612
+    assert fit.params["Pmax"] == pytest.approx(6.85, abs=0.02)
+    assert 6.8 < fit.params["Pmax"] + 3 * fit.stderr["Pmax"] and fit.stderr["Pmax"] < 0.15
+    assert 2.5 < fit.extra["k_lower_bound"] < 5.21  # the paper's k is allowed
+    # the bound is T-eq. 29's end-point ratio inverted: 6.6 / 6.0 = 1 + e^{-k/2} -> k = 2 ln 10
+    assert k_lower_bound(1 / np.array([1.5, 2.0]), [6.0, 6.6], [0.0, 0.0]) == pytest.approx(
+        2 * math.log(10.0), rel=1e-9)
+    # a ratio at or above the linear one, (2 - 1) / (1.5 - 1) = 2, bounds nothing
+    assert k_lower_bound(1 / np.array([1.5, 2.0]), [6.0, 12.5], [0.0, 0.0]) == 0.0
+    # synthetic: k = 12, Pmax = 7 sampled only on the plateau (Ps(1.5) = 7 (1 - e^-6)) ->
+    # plateau, the true k above the bound
+    sat = Ps_teq29(1 / inv, 7.0, 12.0) + np.array([0.02, -0.03, 0.01, -0.01])
+    syn = fit_Ps_law(1 / inv, sat, np.full(4, 0.05))
+    assert syn.form == "plateau" and 0 < syn.extra["k_lower_bound"] < 12.0
+    assert syn.params["Pmax"] == pytest.approx(7.0, abs=3 * syn.stderr["Pmax"])
+    # ... and a rising sweep still keeps the linear form (test above), which the library reads
+    table = campaign_table_from_records([dict(
+        theta=25.0, H=24.0, lam=1.0, sigma=0.5, contact_law="linear", state="steady", Ps=6.8,
+        Ps_sem=0.03, run="r000")])
+    lib = gc.open_library(gc.write_library(tmp_path, "plateau", [fit.replace(
+        coords={"contact_law": "linear"})], table))
+    assert gc.Ps(lib, 0.6, contact_law="linear") == pytest.approx(fit.params["Pmax"], rel=1e-12)
+    assert float(lib["Ps_law_k_lower_bound"].sel(contact_law="linear")) == pytest.approx(
+        fit.extra["k_lower_bound"], rel=1e-12)
+
+
 def test_flow_rule_without_gamma_is_pouliquens_with_gamma_fixed_and_stated():
     rng = np.random.default_rng(47)
     theta = np.repeat([23.0, 24.0, 25.0], 2)

@@ -436,13 +436,17 @@ def density(lib, theta, *, contact_law=None, extrapolate=False, uncertainty=Fals
 
 def Ps(lib, sigma, *, contact_law=None, extrapolate=False, uncertainty=False,
        allow_unidentified=False, impossible="raise"):
-    """T-eq. (29) segregation Peclet number Ps(sigma), sigma = d_small/d_large (or the linear
-    reduced form Ps = slope (1/sigma - 1) over the fitted range)."""
+    """T-eq. (29) segregation Peclet number Ps(sigma), sigma = d_small/d_large (or a reduced
+    form over the fitted range: linear, Ps = slope (1/sigma - 1), or saturated, Ps = Pmax)."""
     c = _closure(lib, "Ps_law", None, contact_law, allow_unidentified)
     if c.form == "linear":
         def model(p, s):
             return p["slope"] * (1.0 / s - 1.0)
         free = ("slope",)
+    elif c.form == "plateau":
+        def model(p, s):
+            return p["Pmax"] * np.ones_like(np.asarray(s, dtype=float))
+        free = ("Pmax",)
     else:
         def model(p, s):
             return Ps_teq29(s, p["Pmax"], p["k"])

@@ -142,7 +142,9 @@ KINDS = {
          "slope": (U.DIMENSIONLESS, "initial slope dPs/d(1/sigma) (linear reduced form)")},
         U.DIMENSIONLESS, {"sigma": (U.DIMENSIONLESS, "size ratio sigma")},
         {"Pmax_lower_bound": (U.DIMENSIONLESS, "one-sided 95 % lower bound on Pmax from the "
-                                               "largest measured Ps")}),
+                                               "largest measured Ps"),
+         "k_lower_bound": (U.DIMENSIONLESS, "one-sided 95 % lower bound on k from a saturated "
+                                            "sweep (plateau reduced form)")}),
     "mu_I": KindSpec(
         (CONTACT_LAW_DIM,), "seed 001 Eq. (2.13)",
         {"mu_s": (U.DIMENSIONLESS, "static friction mu_s"),

@@ -282,6 +282,11 @@ def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int =
     the reduced form Ps = slope (1/sigma - 1) over the fitted range (:mod:`.forms`) and states
     what the data do show about Pmax, a lower bound ``extra["Pmax_lower_bound"]`` =
     max_i(Ps_i - 1.645 s_i) (one-sided 95 %: T-eq. 29 never exceeds Pmax).
+    Where instead Ps has already saturated over the fitted range (every ratio on the plateau,
+    as the paper's set-up gives at 1/sigma = 1.5-2), k is not identified either: the plateau
+    form Ps = Pmax is the other reduced form, and of the two the one with the smaller weighted
+    chi-square is kept (both have one parameter), with ``extra["k_lower_bound"]``
+    (:func:`k_lower_bound`).
     """
     coords = dict(contact_law=contact_law)
     names = ("Pmax", "k", "slope")
@@ -310,8 +315,73 @@ def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int =
              "k are not identified separately; Pmax_lower_bound says what the data show",
              min_points=min_points),
     ]
-    return fit_forms("Ps_law", TEQ29, names, forms, x, y, sigma=s, ids=ids[m], coords=coords,
-                     valid_range={"sigma": data_range(x)},
-                     extra={"Pmax_lower_bound": lower},
-                     error_measure="Eq. (49) of Ps - Ps_fit", selection=selection, seed=seed,
-                     sigma_parts=_parts(sigma_parts, m))
+    plateau = Form("plateau", lambda xx, P: P * np.ones_like(np.asarray(xx, dtype=float)),
+                   ("Pmax",), lambda xx, yy: [float(np.mean(yy))],
+                   "Ps = Pmax over the fitted range: Ps has saturated, so k is not identified; "
+                   "k_lower_bound says what the data show", min_points=min_points)
+    common = dict(sigma=s, ids=ids[m], coords=coords, valid_range={"sigma": data_range(x)},
+                  extra={"Pmax_lower_bound": lower}, error_measure="Eq. (49) of Ps - Ps_fit",
+                  selection=selection, seed=seed, sigma_parts=_parts(sigma_parts, m))
+    res = fit_forms("Ps_law", TEQ29, names, forms, x, y, **common)
+    if res.form == "full":
+        return res
+    # T-eq. 29 not identified: still linear, or already saturated?  Both reduced forms have one
+    # parameter; keep the one whose weighted chi-square is smaller (the linear form on a
+    # plateau had chi2 6612 for 3 degrees of freedom and was called "reduced")
+    alt = fit_forms("Ps_law", TEQ29, names, [forms[0], plateau], x, y, **common)
+    good = ("ok", "reduced")
+    if alt.form == "plateau" and alt.status in good and (
+            res.status not in good
+            or alt.diagnostics.get("chi2", math.inf) < res.diagnostics.get("chi2", math.inf)):
+        res = alt
+    # the bounds use the runs' standard errors, inflated by the Birge ratio where the runs
+    # scatter about the chosen form more than those say
+    birge = res.diagnostics.get("birge_ratio", math.nan)
+    inflate = float(birge) if s is not None and math.isfinite(birge) and birge > 1 else 1.0
+    extra = {"Pmax_lower_bound": float(np.max(y - 1.645 * inflate * err))}
+    if res.form == "plateau":
+        extra["k_lower_bound"] = k_lower_bound(x, y, None if s is None else inflate * err)
+    if inflate > 1:
+        extra["bounds_stderr_inflation"] = inflate
+    return res.replace(extra={**res.extra, **extra})
+
+
+def k_lower_bound(x, Ps, Ps_stderr=None) -> float:
+    """One-sided 95 % lower bound on T-eq. 29's k from a saturated sweep, or 0 where the data
+    give none.
+
+    T-eq. 29's ratio g(k) = Ps(b)/Ps(a) = (1 - e^{-k (b - 1)}) / (1 - e^{-k (a - 1)}) between
+    the largest and the smallest 1/sigma (a < b) falls from (b - 1)/(a - 1) at k = 0 to 1 as
+    k grows, whatever Pmax; the measured ratio's upper end (means at each end, each moved by
+    1.645 of its standard error, or of the scatter about their mean where there is no
+    standard error) bounds k from below: k >= g^-1(ratio_upper).  ``x`` are sigma values."""
+    inv = 1.0 / np.asarray(x, dtype=float)
+    y = np.asarray(Ps, dtype=float)
+    se = (np.full_like(y, np.std(y, ddof=1) if y.size > 1 else math.nan)
+          if Ps_stderr is None else np.asarray(Ps_stderr, dtype=float))
+    lo_x, hi_x = inv.min(), inv.max()
+    if not hi_x > lo_x or lo_x <= 1.0:
+        return math.nan
+
+    def end(mask):
+        n = int(mask.sum())
+        return float(np.mean(y[mask])), float(math.sqrt(np.sum(se[mask] ** 2)) / n)
+
+    ya, sa = end(np.isclose(inv, lo_x))
+    yb, sb = end(np.isclose(inv, hi_x))
+    if not (ya - 1.645 * sa > 0):
+        return 0.0
+    ratio = (yb + 1.645 * sb) / (ya - 1.645 * sa)
+    a, b = lo_x - 1.0, hi_x - 1.0
+    if ratio >= b / a:
+        return 0.0
+    if ratio <= 1.0:
+        return math.inf
+
+    def g(k):
+        return -math.expm1(-k * b) / -math.expm1(-k * a) - ratio
+
+    hi = 1.0
+    while g(hi) > 0 and hi < 1e6:
+        hi *= 2.0
+    return float(optimize.brentq(g, 1e-9, hi)) if g(hi) <= 0 else math.inf
