@@ -278,10 +278,20 @@ def test_Ps_saturated_over_the_sweep_gives_the_plateau_and_a_lower_bound_on_k(tm
     library evaluates it as the constant."""
     from granflow.fitting.segregation import k_lower_bound
 
+    from granflow.reference import SEGREGATION_PAPER_SETUP
+
     inv = np.array([1.5, 1.75, 2.0, 2.0])
     Ps = np.array([6.539, 7.345, 6.821, 6.811])
     se = np.array([0.054, 0.037, 0.032, 0.013])
+    sweep = SEGREGATION_PAPER_SETUP["sweep"]
+    assert sorted((k, r[0], r[1]) for k, runs in sweep.items() for r in runs) == sorted(
+        zip(inv, Ps, se))
     fit = fit_Ps_law(1 / inv, Ps, se)
+    rec = SEGREGATION_PAPER_SETUP["fit"]  # what granflow.reference records is what the fit gives
+    assert rec["form"] == fit.form
+    assert (fit.params["Pmax"], fit.stderr["Pmax"]) == pytest.approx(rec["Pmax"], abs=6e-4)
+    assert fit.extra["Pmax_lower_bound"] == pytest.approx(rec["Pmax_lower_bound"], abs=6e-3)
+    assert fit.extra["k_lower_bound"] == pytest.approx(rec["k_lower_bound"], abs=6e-3)
     assert (fit.status, fit.form) == ("reduced", "plateau"), fit.message
     assert fit.param_status["k"] == "not_in_form" and math.isnan(fit.params["k"])
     assert fit.diagnostics["chi2"] < 0.05 * 6612
