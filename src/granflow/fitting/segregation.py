@@ -281,7 +281,8 @@ def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int =
     identified separately (only their product, the initial slope): the fit then falls back to
     the reduced form Ps = slope (1/sigma - 1) over the fitted range (:mod:`.forms`) and states
     what the data do show about Pmax, a lower bound ``extra["Pmax_lower_bound"]`` =
-    max_i(Ps_i - 1.645 s_i) (one-sided 95 %: T-eq. 29 never exceeds Pmax).
+    max_i(Ps_i - 1.645 s_i) (one-sided 95 %: T-eq. 29 never exceeds Pmax; for a reduced form
+    the s_i are inflated by its Birge ratio when > 1, ``extra["bounds_stderr_inflation"]``).
     Where instead Ps has already saturated over the fitted range (every ratio on the plateau,
     as the paper's set-up gives at 1/sigma = 1.5-2), k is not identified either: the plateau
     form Ps = Pmax is the other reduced form, and of the two the one with the smaller weighted
