@@ -62,6 +62,43 @@ def test_run_path_round_trip_and_paramspace_layout():
         G.parse_run_path("results/x/chute/linear/theta~24")
 
 
+def test_segregated_start_runs_get_their_own_directory_and_parameter():
+    """``initial_mixing: [mixed, segregated]`` doubles a segregation campaign's runs: the
+    segregated start adds ``/start~segregated`` (before ``/seed~k``) and ``initial_mixing:
+    segregated`` to its run parameters; the mixed start keeps the plain directory and older
+    run parameters (no ``initial_mixing`` key); the grid's names are the engine's."""
+    from granflow.engine.chute import INITIAL_MIXINGS
+
+    assert G.STARTS == INITIAL_MIXINGS
+    cfg = merged("config.yaml")
+    cfg["campaigns"]["segregation"]["initial_mixing"] = ["mixed", "segregated"]
+    cfg["numerics"]["replicates"] = 2
+    check_config(cfg, SCHEMA)
+    runs = G.segregation_points(cfg)
+    n_sigma = len(cfg["campaigns"]["segregation"]["sigma"])
+    assert len(runs) == 4 * n_sigma
+    seg = [r for r in runs if r.start == "segregated"]
+    assert len(seg) == 2 * n_sigma
+    for r in runs:
+        assert G.parse_run_path(f"results/x/{r.path}/row.json") == r
+        p = validate_params(G.run_params(cfg, r))
+        if r.start == "segregated":
+            assert "/start~segregated" in r.path and p["initial_mixing"] == "segregated"
+            if r.replicate:
+                assert r.path.endswith(f"/start~segregated/seed~{r.replicate}")
+        else:
+            assert "start~" not in r.path
+            assert "initial_mixing" not in G.run_params(cfg, r)
+    with pytest.raises(ValueError, match="start~layered is not allowed"):
+        G.parse_run_path("segregation/linear/lambda~1/theta~25/H~8/sigma~0.5/start~layered")
+    with pytest.raises(ValueError, match="start~segregated is not allowed"):
+        G.parse_run_path("chute/linear/lambda~1/theta~25/H~8/start~segregated")
+    bad = merged("config.yaml")
+    bad["campaigns"]["segregation"]["initial_mixing"] = ["layered"]
+    with pytest.raises(Exception, match="layered"):
+        check_config(bad, SCHEMA)
+
+
 @pytest.mark.parametrize("names", [("config.yaml",), ("config.yaml", "test-tiny.yaml"),
                                    ("weinhart2012.yaml",)])
 def test_shipped_configs_are_valid_and_every_run_validates(names):

@@ -449,3 +449,32 @@ def test_base_bands_cut_the_papers_and_mercurydpms_slices_of_one_pile(monkeypatc
         assert np.array_equal(key(base), key(expect)), band
     with pytest.raises(ValueError, match=r"band = 'middle' is unknown: allowed \['paper', 'top'\]"):
         chute.BaseConfig(band="middle").validate()
+
+
+def test_segregated_start_puts_every_small_particle_below_every_large_one():
+    """``initial_mixing = "segregated"`` inserts the small particles first in the bottom phi0
+    of the insertion height and the large ones above the highest small one (the fully
+    segregated limit, from which a run approaches its steady segregated state from above);
+    the default "mixed" start keeps both species spread over the column (its particles are
+    those of every earlier run: SHA-256 of these positions unchanged by the option); a monodisperse chute
+    cannot start segregated, and an unknown name is refused with the allowed values."""
+    from granflow.engine.chute import ChuteConfig, build_chute
+    from granflow.simulate import validate_params
+
+    kw = dict(theta=25.0, H=6.0, lam=0.0, Lx=6.0, Ly=4.0, sigma=0.5, phi0=0.5)
+    seg = build_chute(ChuteConfig(initial_mixing="segregated", **kw), np.zeros((0, 3)))
+    mix = build_chute(ChuteConfig(**kw), np.zeros((0, 3)))
+    for s in (seg, mix):
+        assert s.radius.shape == mix.radius.shape
+    z_small = lambda s: s.pos[s.ptype == 0, 2]
+    z_large = lambda s: s.pos[s.ptype == 1, 2]
+    # segregated: strictly layered, with no overlap between the layers
+    assert z_small(seg).max() + 0.5 + 1.0 <= z_large(seg).min() + 1e-12
+    # mixed: the species' height ranges overlap over most of the column
+    assert z_small(mix).max() > z_large(mix).min() + 0.5 * (z_large(mix).max()
+                                                            - z_large(mix).min())
+    with pytest.raises(ValueError, match="needs a mixture"):
+        ChuteConfig(initial_mixing="segregated", H=2.0).validate()
+    with pytest.raises(ValueError, match=r"initial_mixing = 'layered' is unknown: allowed "
+                                         r"\['mixed', 'segregated'\]"):
+        validate_params({"initial_mixing": "layered", "sigma": 0.5, "phi0": 0.5})

@@ -84,6 +84,9 @@ PARAMETERS = {
     "insertion_growth": ("height added to the flow's insertion domain per rejected trial, "
                          "(0, 10] (default 0.01, the paper's text; MercuryDPM's code: 5e-5)"),
     "sigma": "size ratio d_small/d_large, (0, 1]", "phi0": "small-particle volume fraction, [0, 1]",
+    "initial_mixing": ("how a mixture starts: mixed (default: one random insertion order) | "
+                       "segregated (small particles below, large above: the steady segregated "
+                       "state approached from above)"),
     "base_layers": "settled base thickness in lambda, [3, 100] (paper 12)",
     "sample_interval": "time between samples (default t_c/2)",
     "checkpoint_every_s": "wall-clock seconds between checkpoints",
@@ -134,7 +137,7 @@ RANGES = {
 #: parameters that must be integers, true/false, or one of a few names
 INTEGER_PARAMETERS = ("seed", "cg_every")
 BOOLEAN_PARAMETERS = ("early_stop", "stop_when_flowing")
-CHOICE_PARAMETERS = ("contact_law", "cg_base_line")
+CHOICE_PARAMETERS = ("contact_law", "cg_base_line", "initial_mixing")
 #: parameters that may be null (their default is derived from others)
 OPTIONAL_PARAMETERS = ("sample_interval", "min_accelerating_time", "base_t_c", "base_e", "base_mu_c",
                        "max_overlap")
@@ -156,7 +159,10 @@ def _check_value(key, value):
     if key in CHOICE_PARAMETERS:
         from .coarse.profiles import BASE_LINES
 
-        allowed = sorted(LAWS) if key == "contact_law" else sorted(BASE_LINES)
+        from .engine.chute import INITIAL_MIXINGS
+
+        allowed = {"contact_law": sorted(LAWS), "cg_base_line": sorted(BASE_LINES),
+                   "initial_mixing": list(INITIAL_MIXINGS)}[key]
         if not isinstance(value, str) or value not in allowed:
             raise ValueError(f"{key} = {value!r} is unknown: allowed {allowed}")
         return value
@@ -197,7 +203,8 @@ def validate_params(params: dict, *, check_machine: bool = True) -> dict:
     p = dict(theta=24.0, H=10.0, lam=1.0, Lx=20.0, Ly=10.0, seed=1, t_end=2000.0,
              contact_law="linear", t_c=REFERENCE["t_c"], e=REFERENCE["e"], mu_c=REFERENCE["mu_c"],
              kt_over_kn=REFERENCE["kt_over_kn"], gt_over_gn=REFERENCE["gt_over_gn"], v_ref=1.0,
-             steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, base_layers=12.0,
+             steps_per_collision=50.0, skin=0.2, sigma=1.0, phi0=1.0, initial_mixing="mixed",
+             base_layers=12.0,
              insertion_growth=DEFAULT_INSERTION_GROWTH,
              sample_interval=None, checkpoint_every_s=60.0, early_stop=True,
              averaging_time=100.0, check_every=10.0, min_accelerating_time=None, max_overlap=None,
@@ -421,6 +428,7 @@ def chute_config(p: dict) -> ChuteConfig:
                        seed=int(p["seed"]), flow=flow, base=base,
                        steps_per_collision=p["steps_per_collision"], skin=p["skin"],
                        sigma=p["sigma"], phi0=p["phi0"],
+                       initial_mixing=p.get("initial_mixing", "mixed"),
                        insertion_growth=p["insertion_growth"])
 
 

@@ -50,8 +50,10 @@ _AVERAGES = {"flow_height": "h", "u_bar": "u_bar", "froude": "F", "alpha": "alph
              "rho_bar": "rho_bar", "rho_c": "rho_c"}
 #: extra (non-schema) columns every row carries
 EXTRA_COLUMNS = ("kind", "run", "mu_bar", "t_final", "steady_start", "stop_reason", "n_flow",
-                 "state_confidence", "segregation_state", "replicate", "base_sha256")
-_STRING_EXTRAS = ("kind", "run", "stop_reason", "segregation_state", "base_sha256")
+                 "state_confidence", "segregation_state", "replicate", "base_sha256",
+                 "initial_mixing")
+_STRING_EXTRAS = ("kind", "run", "stop_reason", "segregation_state", "base_sha256",
+                  "initial_mixing")
 EXTRA_ATTRS = {
     "kind": {"long_name": "campaign the run belongs to (chute or segregation)"},
     "run": {"long_name": "run directory relative to the campaign results folder"},
@@ -64,6 +66,9 @@ EXTRA_ATTRS = {
     "segregation_state": {"long_name": "segregated state of a bidisperse run (steady, drifting; "
                                        "empty for monodisperse runs)"},
     "replicate": U.cf(U.DIMENSIONLESS, "replicate index k of the run point (insertion seed + k)"),
+    "initial_mixing": {"long_name": "how a bidisperse run's species started: mixed (steady "
+                                    "segregated state approached from below) or segregated "
+                                    "(from above); empty for monodisperse runs"},
     "base_sha256": {"long_name": "SHA-256 of the base file the run fell onto, as the run "
                                  "recorded it (empty: not recorded, or a base prepared from the "
                                  "run's parameters)"},
@@ -309,6 +314,7 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
                n_flow=_f(summ.get("n_flow")), state_confidence=_f(summ.get("state_confidence")),
                segregation_state="" if seg_state is None else
                ("steady" if seg_state else "drifting"), replicate=float(point.replicate),
+               initial_mixing=point.start if point.kind == "segregation" else "",
                base_sha256=str((summ.get("provenance") or {}).get("base_sha256") or ""))
     if row["state"] == "steady" and "layering_amplitude" not in summ:
         # a run classified before layering was checked (granflow.simulate does it since
@@ -497,6 +503,12 @@ def collect_table(row_files, out_nc, out_csv, out_excluded=None, out_segregation
     table["base_sha256"] = (table["base_sha256"] if "base_sha256" in table.columns else
                             pd.Series([""] * len(table), index=table.index, dtype=object)).map(
         lambda v: "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v))
+    # rows from before the segregated start existed: their directory says how they started
+    table["initial_mixing"] = [
+        (str(v) if isinstance(v, str) and v else
+         (parse_run_path(r).start if k == "segregation" else ""))
+        for v, r, k in zip(table["initial_mixing"] if "initial_mixing" in table.columns
+                           else [""] * len(table), table["run"], table["kind"])]
     if config is not None:  # which base each run fell onto (the configuration knows)
         from .grid import base_path, base_seed
 

@@ -12,7 +12,11 @@ so that a rule can rebuild the run's parameters from its output path alone (the 
 the points proposed by the adaptive hstop search share one ``simulate`` rule).  Replicates
 (``replicates: n``, globally under ``numerics`` or per grid block) add ``/seed~k`` for
 k = 1 .. n - 1: the same point with the insertion seed ``seed + k`` (replicate 0 keeps the plain
-directory and the configured seed, so a campaign without replicates is unchanged).  Replicates
+directory and the configured seed, so a campaign without replicates is unchanged).  A
+segregation run started fully segregated (``campaigns.segregation.initial_mixing`` lists
+``segregated`` beside the default ``mixed``) adds ``/start~segregated`` before any ``/seed~k``:
+it approaches the steady segregated state from above where the mixed start approaches it from
+below (:class:`granflow.engine.chute.ChuteConfig`).  Replicates
 share the rough base of their (lambda, box): they measure the scatter of the flow over one
 boundary, the quantity a closure fitted to that base must be given; the base realisation is a
 separate (systematic) question, studied by changing ``base.seed``, or, for the hstop
@@ -32,6 +36,9 @@ import re
 from dataclasses import dataclass
 
 KINDS = ("chute", "segregation", "bracket")
+#: how a segregation run's species start (granflow.engine.chute.INITIAL_MIXINGS; "mixed" is the
+#: default and keeps the plain directory)
+STARTS = ("mixed", "segregated")
 
 #: configuration ``species`` keys -> run parameter names (granflow.simulate.PARAMETERS)
 SPECIES_KEYS = ("t_c", "e", "mu_c", "kt_over_kn", "gt_over_gn", "v_ref", "base_t_c", "base_e",
@@ -46,9 +53,10 @@ _NUM = r"[0-9][0-9.e+-]*"
 _RUN_RE = re.compile(
     rf"(?P<kind>chute|segregation|bracket)/(?P<law>[A-Za-z_]+)/lambda~(?P<lam>{_NUM})/"
     rf"theta~(?P<theta>{_NUM})/H~(?P<H>{_NUM})(?:/sigma~(?P<sigma>{_NUM}))?"
-    rf"(?:/seed~(?P<rep>[0-9]+))?")
+    rf"(?:/start~(?P<start>[a-z]+))?(?:/seed~(?P<rep>[0-9]+))?")
 #: regular expression of the ``point`` part of a run directory (for Snakemake wildcard constraints)
-POINT_REGEX = rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?(/seed~[0-9]+)?"
+POINT_REGEX = (rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?(/start~[a-z]+)?"
+               rf"(/seed~[0-9]+)?")
 
 
 def format_value(x) -> str:
@@ -73,6 +81,7 @@ class RunPoint:
     H: float
     sigma: float = 1.0
     replicate: int = 0
+    start: str = "mixed"
 
     @property
     def path(self) -> str:
@@ -92,6 +101,11 @@ def run_path(p: RunPoint) -> str:
          f"H~{format_value(p.H)}")
     if p.kind == "segregation":
         s += f"/sigma~{format_value(p.sigma)}"
+    if p.start != "mixed":
+        if p.kind != "segregation" or p.start not in STARTS:
+            raise ValueError(f"start {p.start!r} of a {p.kind} run: allowed {list(STARTS)} for "
+                             "segregation runs, 'mixed' otherwise")
+        s += f"/start~{p.start}"
     if p.replicate:
         s += f"/seed~{int(p.replicate)}"
     return s
@@ -106,9 +120,13 @@ def parse_run_path(path: str) -> RunPoint:
     g = m.groupdict()
     if g["kind"] == "segregation" and g["sigma"] is None:
         raise ValueError(f"segregation run directory {path!r} lacks sigma~")
+    start = g["start"] or "mixed"
+    if start not in STARTS or (start != "mixed" and g["kind"] != "segregation"):
+        raise ValueError(f"run directory {path!r}: start~{start} is not allowed (segregation "
+                         f"runs: {list(STARTS)})")
     return RunPoint(g["kind"], g["law"], float(g["lam"]), float(g["theta"]), float(g["H"]),
                     float(g["sigma"]) if g["sigma"] is not None else 1.0,
-                    int(g["rep"]) if g["rep"] is not None else 0)
+                    int(g["rep"]) if g["rep"] is not None else 0, start)
 
 
 def _as_list(x):
@@ -162,16 +180,19 @@ def replicates(config: dict, kind: str) -> int:
 
 
 def segregation_points(config: dict) -> list[RunPoint]:
-    """Runs of the "segregation" campaign: one per (contact law, size ratio sigma)."""
+    """Runs of the "segregation" campaign: one per (contact law, size ratio sigma, start,
+    replicate); ``initial_mixing`` (default ``[mixed]``) lists the starts."""
     c = campaign_cfg(config, "segregation")
     if not enabled(config, "segregation"):
         return []
     out = set()
     for law in _as_list(c.get("contact_law", ["linear"])):
         for sigma in _as_list(c.get("sigma")):
-            for k in range(replicates(config, "segregation")):
-                out.add(RunPoint("segregation", str(law), float(c.get("lambda", 1.0)),
-                                 float(c["theta"]), float(c["H"]), float(sigma), replicate=k))
+            for start in _as_list(c.get("initial_mixing", ["mixed"])):
+                for k in range(replicates(config, "segregation")):
+                    out.add(RunPoint("segregation", str(law), float(c.get("lambda", 1.0)),
+                                     float(c["theta"]), float(c["H"]), float(sigma),
+                                     replicate=k, start=str(start)))
     return sorted(out)
 
 
@@ -297,6 +318,8 @@ def run_params(config: dict, p: RunPoint) -> dict:
                   base_layers=base_settings(config)["layers"])
     if p.kind == "segregation":
         params.update(sigma=p.sigma, phi0=float(c.get("phi0", 0.5)))
+        if p.start != "mixed":  # absent for the default: older run parameters unchanged
+            params["initial_mixing"] = p.start
     if p.kind == "bracket":
         from .hstop import bisection_protocol
 

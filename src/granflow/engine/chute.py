@@ -18,7 +18,12 @@ Implements the protocol of Weinhart et al. (2012) §5 (physics.md §3):
   SilbertPeriodic driver grows I by 1e-4 particle radii (5e-5 d), which gives ~0.31 (0.35 in
   10 x 5).  Default 0.01 (every run made so far); the looser column falls from about twice the
   height.  The number of flow particles is N = H Lx Ly (monodisperse d = 1: "filling height" H
-  is the flow volume / (Lx Ly pi/6)), for mixtures N_s, N_l follow from phi0.
+  is the flow volume / (Lx Ly pi/6)), for mixtures N_s, N_l follow from phi0.  A mixture
+  starts ``initial_mixing = "mixed"`` (default: both species inserted in one random order) or
+  ``"segregated"`` (all small particles inserted first in [0, phi0 I], the large ones above the
+  highest small one: the fully segregated limit, from which the steady segregated state is
+  approached from above while a mixed start approaches it from below -- the two bracket the
+  steady Ps of T-eq. 28 when a run ends before its segregation is steady).
 * **gravity** tilted by theta: g = (sin theta, 0, -cos theta).
 
 Everything random is drawn from ``numpy.random.default_rng(seed)``: the same configuration and
@@ -155,6 +160,10 @@ def _insert(rng, existing_pos, existing_radius, radius, Lx, Ly, z_lo, height0,
         uniforms = np.concatenate([uniforms, rng.random(len(uniforms))])
 
 
+#: How a mixture's species start (:class:`ChuteConfig.initial_mixing`).
+INITIAL_MIXINGS = ("mixed", "segregated")
+
+
 @dataclass
 class ChuteConfig:
     """One periodic chute run (physics.md §1, §3); defaults are the paper's reference values."""
@@ -175,6 +184,8 @@ class ChuteConfig:
     d_small: float = 1.0
     # flow insertion: height added to the insertion domain per rejected trial (module docstring)
     insertion_growth: float = DEFAULT_INSERTION_GROWTH
+    # mixtures: "mixed" (one random insertion order) or "segregated" (small below, large above)
+    initial_mixing: str = "mixed"
 
     def validate(self):
         check_range("theta", self.theta, 0.0, 90.0, lo_open=True, hi_open=True)
@@ -188,6 +199,12 @@ class ChuteConfig:
         check_range("skin", self.skin, 0.0, 10.0, lo_open=True)
         check_range("d_small", self.d_small, 0.0, 100.0, lo_open=True)
         check_range("insertion_growth", self.insertion_growth, 0.0, 10.0, lo_open=True)
+        if self.initial_mixing not in INITIAL_MIXINGS:
+            raise ValueError(f"initial_mixing = {self.initial_mixing!r} is unknown: allowed "
+                             f"{list(INITIAL_MIXINGS)}")
+        if self.initial_mixing == "segregated" and not self.bidisperse:
+            raise ValueError("initial_mixing = 'segregated' needs a mixture: phi0 = "
+                             f"{self.phi0:g}, allowed phi0 < 1")
         return self
 
     @property
@@ -282,16 +299,30 @@ def build_chute(cfg: ChuteConfig, base_positions: np.ndarray | None = None) -> P
     # would put them low and start the run inversely segregated: at depth 24, 1/sigma = 1.5, the
     # small particles' centre of mass started 3.3 d above the flow's and was still sinking at
     # t = 400); one species: in index order.
-    if cfg.bidisperse:
-        order = rng.permutation(len(d_flow))
-    else:
-        order = np.arange(len(d_flow))
     base_r = np.full(len(base_positions), 0.5 * cfg.lam)
     z_lo = 0.0 if cfg.lam > 0 else 0.5 * float(d_flow.max())
-    pos_sorted = _insert(rng, base_positions, base_r, 0.5 * d_flow[order], cfg.Lx, cfg.Ly,
-                         z_lo=z_lo, height0=cfg.H, grow=cfg.insertion_growth)
-    pos_flow = np.empty_like(pos_sorted)
-    pos_flow[order] = pos_sorted
+    if cfg.bidisperse and cfg.initial_mixing == "segregated":
+        # the small particles (species 0, listed first) in the bottom phi0 of the insertion
+        # height, then the large ones above the highest small centre: the fully segregated start
+        small = species == 0
+        r_s, r_l = 0.5 * d_flow[small], 0.5 * d_flow[~small]
+        pos_s = _insert(rng, base_positions, base_r, r_s, cfg.Lx, cfg.Ly, z_lo=z_lo,
+                        height0=cfg.phi0 * cfg.H, grow=cfg.insertion_growth)
+        top = float(pos_s[:, 2].max()) + float(r_s.max()) if len(pos_s) else z_lo
+        pos_l = _insert(rng, np.concatenate([base_positions, pos_s]),
+                        np.concatenate([base_r, r_s]), r_l, cfg.Lx, cfg.Ly,
+                        z_lo=top + float(r_l.max()) if len(r_l) else top,
+                        height0=(1.0 - cfg.phi0) * cfg.H, grow=cfg.insertion_growth)
+        pos_flow = np.concatenate([pos_s, pos_l])
+    else:
+        if cfg.bidisperse:
+            order = rng.permutation(len(d_flow))
+        else:
+            order = np.arange(len(d_flow))
+        pos_sorted = _insert(rng, base_positions, base_r, 0.5 * d_flow[order], cfg.Lx, cfg.Ly,
+                             z_lo=z_lo, height0=cfg.H, grow=cfg.insertion_growth)
+        pos_flow = np.empty_like(pos_sorted)
+        pos_flow[order] = pos_sorted
     tab = cfg.interactions()
     base_type = len(tab.type_names) - 1
     sys_ = ParticleSystem(cfg.Lx, cfg.Ly, tab, gvec=cfg.gravity, skin=cfg.skin,
