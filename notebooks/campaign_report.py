@@ -471,9 +471,17 @@ for law in laws:
     axes[1].errorbar(1 / s["sigma"][used], s["Ps"][used], yerr=yerr[used], fmt="o", ms=5,
                      label=f"{law} runs used (error: decorrelated stderr)")
     if (~used).any():
-        axes[1].errorbar(1 / s["sigma"][~used], s["Ps"][~used], yerr=yerr[~used], fmt="o",
-                         ms=5, mfc="none", color="0.5",
-                         label="runs left out (flow or segregated state not steady)")
+        # a drifting run bounds its steady Ps: from below after a mixed start (^), from above
+        # after a segregated one (v)
+        start = (s["initial_mixing"].astype(str) if "initial_mixing" in s
+                 else pd.Series("mixed", index=s.index))
+        for mark, which, what in (("^", start != "segregated", "mixed start: lower bound"),
+                                  ("v", start == "segregated", "segregated start: upper bound")):
+            sel = ~used & which
+            if sel.any():
+                axes[1].errorbar(1 / s["sigma"][sel], s["Ps"][sel], yerr=yerr[sel], fmt=mark,
+                                 ms=5, mfc="none", color="0.5",
+                                 label=f"runs left out (not steady; {what})")
     r = fit_of("Ps_law", contact_law=law)
     if r is not None and r.state != "failed":
         xs = np.linspace(1.01, max(2.0, float((1 / s["sigma"]).max()) + 0.1), 100)
@@ -487,8 +495,12 @@ for law in laws:
             axes[1].axhline(lb, color="0.4", ls="-.", lw=0.8,
                             label=f"Pmax ≥ {lb:.2f} (95 % lower bound from the data)")
         kb = r.extra.get("k_lower_bound")
-        if r.form == "plateau" and kb is not None:
-            axes[1].plot([], [], " ", label=f"saturated: k ≥ {kb:.2f} (95 % lower bound)")
+        ku = r.extra.get("k_upper_bound")
+        if r.form in ("plateau", "linear") and (kb or (ku is not None and np.isfinite(ku))):
+            what = "saturated" if r.form == "plateau" else "not saturated"
+            rng_k = (f"{kb or 0:.2f} ≤ k ≤ {ku:.2f}" if ku is not None and np.isfinite(ku)
+                     else f"k ≥ {kb:.2f}")
+            axes[1].plot([], [], " ", label=f"{what}: {rng_k} (95 %)")
     else:
         axes[1].text(0.02, 0.9, "Ps(σ) law: " + (r.message if r is not None else "not fitted"),
                      transform=axes[1].transAxes, fontsize=7, wrap=True)

@@ -320,6 +320,58 @@ def test_Ps_saturated_over_the_sweep_gives_the_plateau_and_a_lower_bound_on_k(tm
         fit.extra["k_lower_bound"], rel=1e-12)
 
 
+def test_runs_that_bracket_their_steady_Ps_bound_k_from_both_sides(tmp_path):
+    """A plateau sweep (T-eq. 29 at Pmax 7, k 5.21 sampled at 1/sigma = 1.5-2) bounds k from
+    below only; runs at 1/sigma = 1.25 whose segregated state is still drifting bound their
+    steady Ps from one side each (a mixed start from below, a segregated start from above):
+    together they bound k from both sides, and the true k lies inside.  :func:`k_interval` is
+    checked on a case solvable by hand; the campaign fit takes the one-sided runs from the
+    table's drifting rows, by their ``initial_mixing``."""
+    from granflow.fitting.campaign import fit_campaign
+    from granflow.fitting.segregation import k_interval
+
+    # by hand: two exact points, Ps(2) = 7 (Pmax when k is large) and Ps(1.25) = 7 (1 - e^{-k/4})
+    # with k = 8: only k = 8 fits both when each interval is a point
+    k_true = 8.0
+    x = 1 / np.array([1.25, 2.0])
+    y = Ps_teq29(x, 7.0, k_true)
+    lo, hi = k_interval(x, y * (1 - 2e-3), y * (1 + 2e-3))
+    assert lo == pytest.approx(k_true, rel=0.02) and hi == pytest.approx(k_true, rel=0.02)
+    # contradictory intervals (Ps falling with 1/sigma by far more than their widths): none
+    assert all(math.isnan(v) for v in k_interval(x, [6.0, 3.0], [6.1, 3.1]))
+
+    inv = np.array([1.5, 1.75, 2.0, 2.0])
+    sat = Ps_teq29(1 / inv, 7.0, 12.0) + np.array([0.02, -0.03, 0.01, -0.01])
+    se = np.full(4, 0.05)
+    alone = fit_Ps_law(1 / inv, sat, se)
+    assert alone.form == "plateau" and alone.extra["k_upper_bound"] == math.inf
+    p125 = float(Ps_teq29(0.8, 7.0, 12.0))  # 6.65: steady Ps at 1/sigma = 1.25
+    one_sided = ([0.8, 0.8], [p125 - 0.4, p125 + 0.1], [0.05, 0.05], [1.0, -1.0])
+    both = fit_Ps_law(1 / inv, sat, se, one_sided=one_sided)
+    assert both.form == "plateau"
+    assert both.extra["k_lower_bound"] > alone.extra["k_lower_bound"]
+    assert both.extra["k_lower_bound"] < 12.0 < both.extra["k_upper_bound"] < 40.0
+    assert both.extra["k_bound_runs_one_sided"] == 2.0
+    # a lower bound alone (mixed start) leaves k unbounded above
+    low = fit_Ps_law(1 / inv, sat, se, one_sided=([0.8], [p125 - 0.4], [0.05], [1.0]))
+    assert low.extra["k_upper_bound"] == math.inf
+    # the campaign fit reads them from the table: drifting rows, sides from initial_mixing
+    rows = [dict(theta=25.0, H=24.0, lam=1.0, sigma=1 / v, contact_law="linear",
+                 state="steady", Ps=p, Ps_sem=0.05, run=f"r{i}", kind="segregation",
+                 segregation_state="steady", initial_mixing="mixed")
+            for i, (v, p) in enumerate(zip(inv, sat))]
+    rows += [dict(rows[0], sigma=0.8, Ps=Ps_, run=f"d{i}", segregation_state="drifting",
+                  initial_mixing=m)
+             for i, (Ps_, m) in enumerate(((p125 - 0.4, "mixed"), (p125 + 0.1, "segregated")))]
+    table = campaign_table_from_records(rows)
+    for c in ("kind", "run", "segregation_state", "initial_mixing"):
+        table[c] = [r[c] for r in rows]
+    law = [f for f in fit_campaign(table) if f.kind == "Ps_law"][0]
+    assert law.form == "plateau" and set(law.runs_used) == {"r0", "r1", "r2", "r3"}
+    assert law.extra["k_upper_bound"] == pytest.approx(both.extra["k_upper_bound"], rel=0.05)
+    assert "2 drifting run(s) bound k only" in law.selection
+
+
 def test_flow_rule_without_gamma_is_pouliquens_with_gamma_fixed_and_stated():
     rng = np.random.default_rng(47)
     theta = np.repeat([23.0, 24.0, 25.0], 2)

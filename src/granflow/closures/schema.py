@@ -143,8 +143,10 @@ KINDS = {
         U.DIMENSIONLESS, {"sigma": (U.DIMENSIONLESS, "size ratio sigma")},
         {"Pmax_lower_bound": (U.DIMENSIONLESS, "one-sided 95 % lower bound on Pmax from the "
                                                "largest measured Ps"),
-         "k_lower_bound": (U.DIMENSIONLESS, "one-sided 95 % lower bound on k from a saturated "
-                                            "sweep (plateau reduced form)")}),
+         "k_lower_bound": (U.DIMENSIONLESS, "95 % lower bound on k where T-eq. 29 is reduced "
+                                            "(saturated sweep; runs bracketing their steady Ps)"),
+         "k_upper_bound": (U.DIMENSIONLESS, "95 % upper bound on k where T-eq. 29 is reduced, "
+                                            "from every run's interval (inf: none)")}),
     "mu_I": KindSpec(
         (CONTACT_LAW_DIM,), "seed 001 Eq. (2.13)",
         {"mu_s": (U.DIMENSIONLESS, "static friction mu_s"),

@@ -447,7 +447,24 @@ def _ps_law(seg, law, seed):
     sel = describe_selection(
         f"Ps(sigma) law from bidisperse runs of contact law {law} (sigma = {_range(seg['sigma'])})",
         seg, use, left, note) + "; " + UNDECIDED_TREATMENT["segregation"]
+    # runs whose segregated state is still drifting bound their steady Ps from one side: from
+    # below after a mixed start, from above after a segregated one (granflow.engine.chute)
+    one_sided, sides = None, None
+    if "segregation_state" in seg.columns:
+        drift = ((seg["state"] == "steady").to_numpy()
+                 & (seg["segregation_state"].astype(str).to_numpy() == "drifting")
+                 & (seg["sigma"].to_numpy(float) < 1.0 - 1e-9))
+        start = (seg["initial_mixing"].astype(str).to_numpy() if "initial_mixing" in seg.columns
+                 else np.full(len(seg), "mixed"))
+        sides = np.where(start == "segregated", -1.0, 1.0)[drift]
+        d = seg[drift]
+        if len(d):
+            one_sided = (d["sigma"].to_numpy(float), d["Ps"].to_numpy(float),
+                         pd.to_numeric(d.get("Ps_sem"), errors="coerce").to_numpy(float), sides)
+            sel += (f"; {len(d)} drifting run(s) bound k only, as one-sided bounds on their "
+                    f"steady Ps ({int((sides > 0).sum())} from below, mixed start; "
+                    f"{int((sides < 0).sum())} from above, segregated start)")
     return _with_selection(
         fit_Ps_law(runs["sigma"].to_numpy(float), runs["Ps"].to_numpy(float), sem,
                    contact_law=law, ids=_ids(runs), selection=sel, seed=seed,
-                   sigma_parts=parts), sel, _ids(runs))
+                   sigma_parts=parts, one_sided=one_sided), sel, _ids(runs))

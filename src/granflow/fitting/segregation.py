@@ -272,7 +272,8 @@ def Ps_teq29(sigma, Pmax, k):
 
 
 def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int = 3, ids=None,
-               selection: str = "", seed: int = 0, sigma_parts=None) -> FitResult:
+               selection: str = "", seed: int = 0, sigma_parts=None,
+               one_sided=None) -> FitResult:
     """Fit T-eq. (29) to per-run Peclet numbers Ps at size ratios sigma.
 
     ``Ps_stderr``: each run's standard error of Ps (from decorrelated windows); the points are
@@ -288,6 +289,14 @@ def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int =
     form Ps = Pmax is the other reduced form, and of the two the one with the smaller weighted
     chi-square is kept (both have one parameter), with ``extra["k_lower_bound"]``
     (:func:`k_lower_bound`).
+
+    ``one_sided``: runs whose segregated state was not shown steady, as (sigma, Ps, stderr,
+    side) arrays; side +1 for a run that started mixed (its Ps approaches the steady value from
+    below: a lower bound), -1 for one that started segregated (from above: an upper bound).
+    They enter no fit; with a reduced form they and the fitted runs bound k from both sides
+    (:func:`k_interval`, every run's interval end at once at 95 %, Bonferroni):
+    ``extra["k_upper_bound"]`` (inf where nothing bounds it), and ``k_lower_bound`` is the
+    larger of the two lower bounds.
     """
     coords = dict(contact_law=contact_law)
     names = ("Pmax", "k", "slope")
@@ -342,9 +351,52 @@ def fit_Ps_law(sigma, Ps, Ps_stderr=None, *, contact_law=None, min_points: int =
     extra = {"Pmax_lower_bound": float(np.max(y - 1.645 * inflate * err))}
     if res.form == "plateau":
         extra["k_lower_bound"] = k_lower_bound(x, y, None if s is None else inflate * err)
+    if res.form in ("plateau", "linear") and s is not None:
+        xo = yo = so = side = np.zeros(0)
+        if one_sided is not None:
+            xo, yo, so, side = (np.asarray(v, dtype=float).ravel() for v in one_sided)
+            ok = finite_mask(xo, yo, so, side) & (xo > 0) & (xo < 1) & (side != 0)
+            xo, yo, so, side = xo[ok], yo[ok], so[ok], side[ok]
+        n_one = int(xo.size)
+        # every interval end at once at 95 % (Bonferroni over the 2 ends of each fitted run and
+        # the one end of each one-sided run); fitted runs' stderrs Birge-inflated as above
+        zq = float(stats.norm.ppf(1.0 - 0.05 / (2 * x.size + n_one)))
+        k_lo, k_hi = k_interval(
+            np.concatenate([x, xo]),
+            np.concatenate([y - zq * inflate * err, np.where(side > 0, yo - zq * so, 0.0)]),
+            np.concatenate([y + zq * inflate * err, np.where(side < 0, yo + zq * so, math.inf)]))
+        extra["k_upper_bound"] = k_hi
+        if math.isfinite(k_lo):
+            extra["k_lower_bound"] = max(k_lo, extra.get("k_lower_bound", 0.0) or 0.0)
+        extra["k_bound_runs_one_sided"] = float(n_one)
     if inflate > 1:
         extra["bounds_stderr_inflation"] = inflate
     return res.replace(extra={**res.extra, **extra})
+
+
+def k_interval(x, lower, upper, k_grid=None) -> tuple[float, float]:
+    """The k of T-eq. 29 for which some Pmax puts every run's Ps inside its interval
+    [lower_i, upper_i] (``x``: sigma values; an open end is 0 or inf).
+
+    For a given k, Pmax must lie in [max_i lower_i / f_i(k), min_i upper_i / f_i(k)] with
+    f_i(k) = 1 - e^{-k (1/sigma_i - 1)}; k is feasible where that interval is not empty.
+    Scanned on a log grid of k in [1e-2, 1e3] (200 points per decade); returns (smallest,
+    largest) feasible k, 0 / inf where the scan's end is feasible, (nan, nan) where no k is
+    (the intervals contradict T-eq. 29)."""
+    inv = 1.0 / np.asarray(x, dtype=float)
+    lo, hi = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    k = np.logspace(-2, 3, 1001) if k_grid is None else np.asarray(k_grid, dtype=float)
+    f = -np.expm1(-np.outer(k, inv - 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pmax_lo = np.max(np.where(lo > 0, lo / f, 0.0), axis=1)
+        pmax_hi = np.min(np.where(np.isfinite(hi), hi / f, math.inf), axis=1)
+    feasible = pmax_lo <= pmax_hi
+    if not feasible.any():
+        return math.nan, math.nan
+    idx = np.flatnonzero(feasible)
+    k_lo = 0.0 if idx[0] == 0 else float(k[idx[0]])
+    k_hi = math.inf if idx[-1] == len(k) - 1 else float(k[idx[-1]])
+    return k_lo, k_hi
 
 
 def k_lower_bound(x, Ps, Ps_stderr=None) -> float:
