@@ -856,3 +856,54 @@ def test_segregation_fit_recovers_Ps_and_the_depth_it_is_per(tmp_path, depth):
     assert fit.ok and fit.params["Ps"] == pytest.approx(6.0, rel=0.02), fit.params
     assert fit.extra["scaled_depth"] == pytest.approx(depth, abs=0.05)
     assert fit.extra["scaled_depth"] == pytest.approx(profile["surface"] - profile["base"])
+
+
+def _profiles_with_Ps(path, Ps_windows, depth=16.0, noise=0.0, seed=0):
+    """A run's profiles.nc whose windows hold T-eq. (28) profiles at the given Ps values."""
+    import xarray as xr
+
+    from granflow.fitting.segregation import phi_teq28
+
+    rng = np.random.default_rng(seed)
+    z = np.arange(-2.0, depth + 6.0, 0.05)
+    inside = (z >= 0) & (z <= depth)
+    nu_w = []
+    for P in Ps_windows:
+        phi = np.where(inside, phi_teq28(np.clip(z / depth, 0, 1), P, 0.5), 0.0)
+        phi = np.clip(phi + noise * rng.standard_normal(z.size) * inside, 0, 1)
+        nu_w.append(np.stack([phi * 0.58 * inside, (1 - phi) * 0.58 * inside]))
+    n_w = len(Ps_windows)
+    szz = np.where(inside, 0.58 * (depth - z), 0.0)
+    xr.Dataset(
+        {"species_volume_fraction_window": (("window", "species", "z"), np.array(nu_w)),
+         "stress_zz_window": (("window", "z"), np.repeat(szz[None], n_w, axis=0)),
+         "window_n_snapshots": (("window",), np.full(n_w, 25.0)),
+         "window_time_start": (("window",), 100.0 + 20.0 * np.arange(n_w))},
+        coords={"z": z},
+        attrs={"t_final": 100.0 + 20.0 * n_w, "segregation_state": "steady",
+               "profile_time_from": 100.0, "cg_small_species": 0}).to_netcdf(path)
+
+
+def test_a_Ps_still_rising_over_its_windows_is_not_called_steady(tmp_path):
+    """The stop rule watches the small particles' centre of mass; Ps reacts to the last of
+    the segregation about twice as strongly (measured: a depth-8 mixed start called steady at
+    t = 771 with Ps 8.97 rising +15.5 % over its windows, p = 0.005, where the state it was
+    heading for has Ps 11.5-12.4).  The per-window Ps trend is measured; a significant one
+    above 5 % flags the run (``ps_still_moving``), a flat noisy one does not."""
+    from granflow.campaign.collect import PS_TREND_TOLERANCE, ps_still_moving, segregation_fit
+
+    rising = np.linspace(8.0, 10.0, 11)  # +22 % over the windows
+    (tmp_path / "r").mkdir()
+    _profiles_with_Ps(tmp_path / "r" / "profiles.nc", rising, noise=0.01)
+    fit, _, _ = segregation_fit(tmp_path / "r", 0.75, "linear", window=100.0)
+    assert fit.extra["Ps_trend_change"] == pytest.approx(0.22, abs=0.03)
+    assert fit.extra["Ps_trend_p"] < 0.01 and ps_still_moving(fit.extra)
+    flat = 9.0 + 0.3 * np.random.default_rng(3).standard_normal(11)
+    (tmp_path / "f").mkdir()
+    _profiles_with_Ps(tmp_path / "f" / "profiles.nc", flat, noise=0.01)
+    fit, _, _ = segregation_fit(tmp_path / "f", 0.75, "linear", window=100.0)
+    assert abs(fit.extra["Ps_trend_change"]) < PS_TREND_TOLERANCE
+    assert not ps_still_moving(fit.extra)
+    # a significant but small trend (2 %) is within the tolerance
+    assert not ps_still_moving({"Ps_trend_change": 0.02, "Ps_trend_p": 1e-6})
+    assert ps_still_moving({"Ps_trend_change": -0.08, "Ps_trend_p": 0.01})

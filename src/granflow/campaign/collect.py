@@ -129,6 +129,23 @@ def small_fraction_profiles(ds, t_from: float):
     return ds["z"].values, phi, phi_w[use], np.nonzero(use)[0]
 
 
+#: A run's Ps still moves over its profile windows when their linear trend is significant at
+#: this level and changes Ps by more than PS_TREND_TOLERANCE over them (measured 2026-11-29,
+#: depth 8, 10 x 5, sigma = 0.75, paper species: a mixed start shown steady by the centre of
+#: mass at t = 771 gave Ps 8.97 with a trend of +15.5 % (p = 0.005) over its windows; run on to
+#: t = 2000, and from a segregated start, Ps settles near 11.5-12.4)
+PS_TREND_P = 0.05
+PS_TREND_TOLERANCE = 0.05
+
+
+def ps_still_moving(extra: dict) -> bool:
+    """True when a segregation fit's per-window Ps trend (``Ps_trend_change``, ``Ps_trend_p``
+    of :func:`segregation_fit`) is significant and larger than :data:`PS_TREND_TOLERANCE`."""
+    ch, p = extra.get("Ps_trend_change"), extra.get("Ps_trend_p")
+    return (ch is not None and p is not None and math.isfinite(ch) and math.isfinite(p)
+            and p < PS_TREND_P and abs(ch) > PS_TREND_TOLERANCE)
+
+
 def segregation_fit(run_dir, sigma: float, law: str, window: float):
     """Fit Ps (T-eq. 28) to a bidisperse run's phi(z) in its steady segregated window.
 
@@ -179,19 +196,27 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
     # Ps is per unit scaled depth: the depth it is per (granflow.reference.SEGREGATION_PAPER_SETUP
     # measured Ps proportional to it within 2 % over windows 19.9-24.0 d deep)
     fit.extra["scaled_depth"] = float(s - b) if inside.any() else math.nan
-    per = []
+    per, t_per = [], []
+    starts = np.asarray(ds["window_time_start"].values, dtype=float)[used]
     for k in range(len(phi_w)):
         r = fit_Ps(zeta, phi_w[k][inside], sigma=sigma, contact_law=law)
         if r.ok:
             per.append(r.params["Ps"])
+            t_per.append(starts[k])
     spread = float(np.std(per, ddof=1)) if len(per) > 1 else math.nan
-    from ..steady.timeseries import standard_error_of_mean
+    from ..steady.timeseries import standard_error_of_mean, trend_test
 
     sem = standard_error_of_mean(per) if len(per) > 1 else math.nan
     if fit.ok:
         fit.extra["Ps_covariance_stderr"] = fit.stderr["Ps"]
         fit.extra["Ps_std"] = spread
         fit.extra["n_windows"] = len(per)
+        if len(per) >= 4:
+            # does Ps itself still move over the profile's windows?  (the stop rule watches the
+            # small particles' centre of mass, to which Ps reacts about twice as strongly)
+            tr = trend_test(np.asarray(per), np.asarray(t_per))
+            fit.extra["Ps_trend_change"] = float(tr.relative_change)
+            fit.extra["Ps_trend_p"] = float(tr.p_value)
         fit = fit.replace(stderr={"Ps": sem},
                           stderr_method=("standard error of the mean of per-window fits "
                                          f"({len(per)} windows, decorrelated)"))
@@ -337,6 +362,13 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
                           selection=f"phi(z) of run {point.path} from t = {profile['t_from']:.6g}"
                                     f" ({profile['n_windows']} windows); flow {row['state']}, "
                                     f"segregated state {fit.extra.get('segregation_state')}")
+        if row["segregation_state"] == "steady" and ps_still_moving(fit.extra):
+            # the centre of mass was shown steady but Ps itself still moves over the profile's
+            # windows: its Ps bounds the steady value from one side only
+            row["segregation_state"] = "drifting"
+            fit = fit.replace(selection=fit.selection + (
+                f"; Ps still moving over its windows ({100 * fit.extra['Ps_trend_change']:+.1f} %"
+                f", trend p = {fit.extra['Ps_trend_p']:.2g}): counted as drifting"))
         row["Ps"] = fit.params["Ps"]
         row["Ps_std"] = spread
         row["Ps_sem"] = fit.stderr["Ps"]
