@@ -130,10 +130,12 @@ def small_fraction_profiles(ds, t_from: float):
 
 
 #: A run's Ps still moves over its profile windows when their linear trend is significant at
-#: this level and changes Ps by more than PS_TREND_TOLERANCE over them (measured 2026-11-29,
-#: depth 8, 10 x 5, sigma = 0.75, paper species: a mixed start shown steady by the centre of
-#: mass at t = 771 gave Ps 8.97 with a trend of +15.5 % (p = 0.005) over its windows; run on to
-#: t = 2000, and from a segregated start, Ps settles near 11.5-12.4)
+#: this level and changes Ps by more than PS_TREND_TOLERANCE over them.  Measured 2026-11-29
+#: (depth 8, 10 x 5, sigma = 0.75, paper species): a mixed start shown steady by the centre of
+#: mass at t = 771 gave Ps 8.97 with a trend of +15.5 % (p = 0.005) over its windows; the same
+#: run continued to t = 2000 has 150-unit means of Ps between 9.2 and 12.1 (mean 10.8 over
+#: 760-2000: Ps fluctuates on a time scale of 100-300 in so small a box), and a segregated
+#: start 10.9-13.1 over 1580-2000 (11.47 at its own stop, t = 211)
 PS_TREND_P = 0.05
 PS_TREND_TOLERANCE = 0.05
 
