@@ -85,6 +85,12 @@ README_COMMANDS = {
     ".venv/bin/python -m pytest -m slow tests/test_continuum_slow.py -k switch":
         ("tests/test_continuum_slow.py::test_switch_efolding_time_of_the_column_within_25_percent",
          "pytest -m slow (needs the continuum-soft campaign; skipped without it)"),
+    ".venv/bin/python -m pytest -m slow tests/test_continuum_paper_slow.py":
+        ("tests/test_continuum_paper_slow.py::test_switch_efolding_time_of_the_column_within_25_percent",
+         "pytest -m slow (needs the lambda = 1 reference's results; skipped without them)"),
+    ".venv/bin/python -m pytest -m slow tests/test_reference_lambda1_slow.py":
+        ("tests/test_reference_lambda1_slow.py::test_parameter_agrees_with_the_paper",
+         "pytest -m slow (needs the lambda = 1 reference's results; skipped without them)"),
     "pkill -x granflow-sim":
         ("tests/test_cli.py::test_running_simulation_has_a_name_and_a_pid_file_and_stops_cleanly",
          "pgrep -x finds the run by that name"),
@@ -141,6 +147,11 @@ README_COMMANDS = {
     ".venv/bin/python benchmarks/flow_rule_runs.py RUN_DIR ... --hstop 18.214 33.790 3.427":
         ("tests/test_benchmark_tools.py::test_flow_rule_runs_recovers_table_1_from_runs_on_its_law",
          "on six synthetic run folders whose F lies on Table 1's law"),
+    ".venv/bin/python benchmarks/flow_rule_runs.py results/reference-lambda1/chute/linear/"
+    "lambda~1/theta~*/H~* --hstop 17.708 32.780 3.355":
+        ("tests/test_benchmark_tools.py::test_flow_rule_runs_recovers_table_1_from_runs_on_its_law",
+         "on six synthetic run folders whose F lies on Table 1's law; the real folders are the "
+         "lambda = 1 reference's steady runs (~2 h on 2 cores)"),
     ".venv/bin/python benchmarks/early_stop_bias.py RESULTS --lam 0.5 --jobs 2":
         ("tests/test_benchmark_tools.py::test_early_stop_bias_compares_the_steady_window_with_the_last_averaging_time",
          "on a results tree with one early-stopped steady run whose continuation is replaced by "
