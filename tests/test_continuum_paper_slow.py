@@ -1,0 +1,104 @@
+"""Uniform-layer ODE against particle runs at the paper's species (slow).
+
+The change-of-inclination check of issue 17 (part 1) as ``tests/test_continuum_slow.py`` makes
+it, but restarted from the steady runs of the lambda = 1 reference
+(``config/reference-lambda1.yaml``: the paper's species t_c = 0.005, 10 x 5 box, hstop and the
+flow rule identified) instead of the soft-species campaign, whose hstop (and so mu(h, F)) is not
+identified.  Needs that campaign's results (``snakemake --cores 2 --configfile
+config/reference-lambda1.yaml``, about 1.5-2 h on 2 cores); the switch runs missing are made here
+under ``results/continuum-paper`` (about 2-5 min each on one core).  The children's inclinations
+lie between the reference's grid angles (its library never saw these steady states).  Tolerances
+of issue 17: steady u_bar within 5 %, e-folding time within 25 %; cases that fail are strict
+expected failures with the measured reason (``tests/continuum_known_failures.json``, keys
+``paper_u:``, ``paper_tau:`` and ``paper_column_tau:``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from granflow.continuum import experiments as ex
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+CAMPAIGN = REPO / "results" / "reference-lambda1"
+OUT = REPO / "results" / "continuum-paper"
+RUNS = CAMPAIGN / "chute" / "linear" / "lambda~1"
+#: (parent theta, H, child theta, t_end): up and down, thin (H = 10) and thick (H = 20), and one
+#: near hstop (H = 10 at 23.5 deg: h/hstop 1.5 by Table 1, 1.2 by the reference's own curve;
+#: its 23 deg run oscillated, its 22 deg run arrested)
+SWITCHES = [(26.0, 10, 27.5, 400.0), (28.0, 10, 26.5, 400.0), (24.0, 20, 25.5, 400.0),
+            (28.0, 20, 26.5, 400.0), (24.0, 10, 23.5, 300.0)]
+
+
+def _name(th1, H, th2):
+    return f"H{H}_{th1:g}to{th2:g}"
+
+
+KNOWN = json.loads((Path(__file__).with_name("continuum_known_failures.json")).read_text())
+
+
+def _maybe_xfail(key):
+    why = KNOWN.get(key)
+    return [pytest.mark.xfail(strict=True, reason=why)] if why else []
+
+
+@pytest.fixture(scope="module")
+def comparison():
+    if not (CAMPAIGN / "closures.nc").exists():
+        pytest.skip("needs the lambda = 1 reference: "
+                    "snakemake --cores 2 --configfile config/reference-lambda1.yaml")
+    from granflow.closures import open_library
+
+    lib = open_library(CAMPAIGN / "closures.nc")
+    out = {}
+    for th1, H, th2, t_end in SWITCHES:
+        parent = RUNS / f"theta~{th1:g}" / f"H~{H}"
+        child = OUT / "switch" / _name(th1, H, th2)
+        if not (child / "summary.json").exists():
+            ex.run_switch(parent, th2, child, t_end=t_end)
+        out[_name(th1, H, th2)] = ex.compare_switch(lib, parent, child)
+    return out
+
+
+@pytest.mark.parametrize("th1, H, th2", [pytest.param(a, b, c, marks=_maybe_xfail(
+    f"paper_u:{_name(a, b, c)}")) for a, b, c, _ in SWITCHES])
+def test_switch_steady_velocity_within_5_percent(comparison, th1, H, th2):
+    s = comparison[_name(th1, H, th2)]
+    assert s["child_state"] == "steady", f"particle run ended {s['child_state']}"
+    assert abs(s["err_u_steady"]) <= ex.TOL_STEADY_U, s["err_u_steady"]
+
+
+@pytest.mark.parametrize("th1, H, th2", [pytest.param(a, b, c, marks=_maybe_xfail(
+    f"paper_tau:{_name(a, b, c)}")) for a, b, c, _ in SWITCHES])
+def test_switch_efolding_time_within_25_percent(comparison, th1, H, th2):
+    s = comparison[_name(th1, H, th2)]
+    assert math.isfinite(s.get("tau", math.nan)), s.get("fit_error")
+    assert abs(s["err_tau"]) <= ex.TOL_TAU, s["err_tau"]
+
+
+@pytest.mark.parametrize("th1, H, th2", [pytest.param(a, b, c, marks=_maybe_xfail(
+    f"paper_column_tau:{_name(a, b, c)}")) for a, b, c, _ in SWITCHES])
+def test_switch_efolding_time_of_the_column_within_25_percent(comparison, th1, H, th2):
+    """The same closures as a depth-resolved column (granflow.continuum.column: the profile
+    adjusts by shear); nothing is fitted to the switch runs.  At the paper's species it is
+    within 25 % of every steady switch (2026-12-01: -24.0, -12.6, -6.2, -11.0 %) where the
+    uniform-layer ODE misses three of four by 28-39 %."""
+    s = comparison[_name(th1, H, th2)]
+    assert math.isfinite(s.get("tau", math.nan)), s.get("fit_error")
+    assert s["column_tau"] > s["ode_tau"]
+    assert abs(s["err_tau_column"]) <= ex.TOL_TAU, s["err_tau_column"]
+
+
+def test_the_reference_library_identifies_the_friction_law(comparison):
+    """What makes these switches a test of the closures rather than of their uncertainty: the
+    reference identifies hstop (Eq. 45) and fits the flow rule, so mu(h, F) is not
+    'unidentified' as in the soft-species campaign."""
+    s = next(iter(comparison.values()))
+    assert s["closure_status"].get("friction") not in (None, "unidentified", "failed"), \
+        s["closure_status"]
