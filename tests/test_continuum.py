@@ -714,3 +714,58 @@ def test_switch_measurement_recovers_the_velocity_and_dilation_time_scales(tmp_p
     assert math.isnan(m["tau_dilation"]) and m["dilation_fit"].startswith(("unidentified",
                                                                            "failed"))
     assert math.isnan(m["tau"]) and m["fit_error"].startswith(("unidentified", "too few"))
+
+
+def test_segregation_against_model_recovers_a_model_run_and_scales_its_half_time_with_D():
+    """Round trip: a 'particle run' that is T-eq. (27) itself (Ps 6.8, D 0.02, h 22, measured
+    from a fifth of the way, its steady profile as the fit's) gives a half-time error below 1 %
+    and a profile error below 1e-3 with the same Ps and D, and -50 % (exactly 1/D) with twice D;
+    the asymmetric flux at kappa = 0 is the symmetric one."""
+    from granflow.continuum.experiments import aligned_half_time, segregation_against_model
+    from granflow.continuum.segregation import segregation_layer
+
+    Ps, D, h = 6.8, 0.02, 22.0
+    res = segregation_layer(Ps=Ps, D=D, h=h, phi0=0.5, t_end=4000.0, n=200, n_out=4001)
+    t, s = res.t.values, res.indicator.values
+    s_inf = float(res.indicator_steady)
+    s0 = 0.2 * s_inf
+    th, t_shift = aligned_half_time(t, s, s_inf, s0)
+    after = t >= t_shift
+    m = {"run": "model", "sigma": 0.5, "phi0": 0.5, "h": h, "u_bar": 10.0, "t0": 0.0,
+         "s0": s0, "plateau": s_inf, "t_half": th, "segregation_steady": True,
+         "t": (t[after] - t_shift).tolist(), "s": (s[after] - s0).tolist()}
+    zeta = res.zeta.values
+    fit = {"fit": {"extra": {"asymmetric_Ps": Ps, "asymmetric_kappa": 0.0}},
+           "profile": {"zeta": zeta.tolist(), "phi": res.phi.values[-1].tolist()}}
+    out = segregation_against_model(m, fit, Ps=Ps, Ps_status="ok", D=D, D_std=0.1 * D)
+    for flux in ("symmetric", "asymmetric"):
+        assert abs(out[flux]["err_t_half"]) < 0.01, out[flux]["err_t_half"]
+        assert out[flux]["phi_rms_vs_particles"] < 1e-3
+        assert out[flux]["pass_t_half"]
+        assert out[flux]["t_half_std"] == pytest.approx(0.1 * out[flux]["t_half"], rel=1e-12)
+    fast = segregation_against_model(m, fit, Ps=Ps, Ps_status="ok", D=2 * D, D_std=0.0)
+    assert fast["symmetric"]["err_t_half"] == pytest.approx(-0.5, abs=0.01)
+    assert not fast["symmetric"]["pass_t_half"]
+
+
+def test_steady_diffusivity_measures_the_steady_window_and_scales_it_to_c_D(tmp_path):
+    """Synthetic tracers: D = 0.5 before the run's steady window (t < 100) and 0.02 in it; the
+    steady window's D within 10 % and c_D = D h / u_bar exactly from it (h 20, u_bar 8)."""
+    import json
+
+    from granflow.continuum.experiments import steady_diffusivity
+
+    rng = np.random.default_rng(11)
+    dt, n = 0.5, 800
+    t = np.arange(0.0, 300.0 + 1e-9, dt)
+    Dt = np.where(t[1:] > 100.0, 0.02, 0.5)
+    steps = rng.standard_normal((t.size - 1, n)) * np.sqrt(2.0 * dt * Dt)[:, None]
+    z = np.vstack([np.zeros(n), np.cumsum(steps, axis=0)])
+    np.savez(tmp_path / "tracers.npz", time=t, z=z, diameter=np.ones(n))
+    (tmp_path / "summary.json").write_text(json.dumps(
+        {"profile_time_from": 100.0, "depth_averages": {"flow_height": 20.0, "u_bar": 8.0}}))
+    r = steady_diffusivity(tmp_path)
+    assert (r["t_from"], r["t_to"]) == (100.0, 300.0)
+    assert r["D"] == pytest.approx(0.02, rel=0.1)
+    assert r["c_D"] == pytest.approx(r["D"] * 20.0 / 8.0, rel=1e-12)
+    assert r["c_D_stderr"] == pytest.approx(r["D_stderr"] * 2.5, rel=1e-12)

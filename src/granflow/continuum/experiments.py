@@ -36,9 +36,16 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   Fan et al. 2014's local mean) gave 1.5-1.8x at sigma 0.5-0.7; so :func:`compare_segregation`
   uses ``d_mean = 1`` (:data:`SEGREGATION_D_LENGTH`).
 
-Command line: ``python -m granflow.continuum.experiments {switch,long-chute,diffusivity,
-segregation-tracers,compare} ...`` (``-h`` for the arguments); the slow tests in ``tests/test_continuum_slow.py``
-run the comparisons with the issue's tolerances.
+* **Segregation at the paper's set-up** (:func:`compare_segregation_reference`): a run of the
+  segregation reference (depth 24, where the steady interface is ~3 d wide and resolved)
+  simulated in its campaign folder with tracers (``segregation-run``); Ps from its steady
+  profile (its library cell) or a T-eq. (29) law, D from its own steady window
+  (:func:`steady_diffusivity`) or its transient.
+
+Command line: ``python -m granflow.continuum.experiments [-v] {switch,long-chute,diffusivity,
+segregation-tracers,segregation-run,compare-segregation,compare} ...`` (``-h`` for the
+arguments); the slow tests in ``tests/test_continuum_slow.py`` and
+``tests/test_continuum_paper_slow.py`` run the comparisons with the issue's tolerances.
 """
 
 from __future__ import annotations
@@ -623,8 +630,6 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     Non-ok closures: with ``allow_unidentified=True`` (the default here, as the comparison is
     meant to show how such closures predict) an ``unidentified`` Ps or diffusivity is used and
     its status is recorded (``Ps_status``); ``failed`` closures always raise."""
-    from .segregation import segregation_layer
-
     m = segregation_measurement(run_dir)
     sigma, phi0 = m["sigma"], m["phi0"]
     if d_length not in ("small", "volume_mean"):
@@ -635,6 +640,21 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     D, D_std = float(Dds["value"]), float(Dds["std"])
     Ps, Ps_status = segregation_Ps_at(lib, sigma, allow_unidentified=allow_unidentified)
     fit = next(f for f in seg_fits if abs(f["fit"]["coords"].get("sigma", -1) - sigma) < 1e-9)
+    return segregation_against_model(m, fit, Ps=Ps, Ps_status=Ps_status, D=D, D_std=D_std,
+                                     d_mean=d_mean, d_length=d_length, tracer_dir=tracer_dir)
+
+
+def segregation_against_model(m: dict, fit: dict, *, Ps: float, Ps_status: str, D: float,
+                              D_std: float, d_mean: float = 1.0, d_length: str = "small",
+                              tracer_dir=None) -> dict:
+    """The core of :func:`compare_segregation` with Ps and D given: ``m`` the run's
+    :func:`segregation_measurement`, ``fit`` its entry of ``segregation_fits.json`` (or of its
+    ``row.json``: ``{"fit": row["segregation_fit"], "profile": row["segregation_profile"]}``;
+    the asymmetric flux's (Ps, kappa) and the steady profile come from it).  Used where Ps and D
+    come from a closure that is not a per-size-ratio cell of a library (a law, a measured D)."""
+    from .segregation import segregation_layer
+
+    phi0 = m["phi0"]
     ex = fit["fit"]["extra"]
     prof = fit["profile"]
     t_end = max(m["t"][-1], 1.0)
@@ -688,6 +708,55 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
             t_end=2.0 * t_end)
     out["zeta"] = zeta.tolist()
     out["phi_particles"] = phi_p.tolist()
+    return out
+
+
+def steady_diffusivity(run_dir, *, tau_fit=(2.0, 10.0)) -> dict:
+    """Self-diffusivity in z over a run's steady window (``profile_time_from`` of its summary to
+    its end) from its ``tracers.npz``: all flow particles and per species, as
+    :func:`transient_diffusivity`, with c_D = D h / u_bar (the closure's D = c_D (u_bar/h) d^2 at
+    the small diameter d = 1)."""
+    s = _summary(run_dir)
+    with np.load(Path(run_dir) / "tracers.npz") as f:
+        t_last = float(f["time"][-1])
+    out = transient_diffusivity(run_dir, float(s["profile_time_from"]), t_last, tau_fit=tau_fit)
+    da = s["depth_averages"]
+    out.update(h=da["flow_height"], u_bar=da["u_bar"],
+               c_D=out["D"] * da["flow_height"] / da["u_bar"],
+               c_D_stderr=out["D_stderr"] * da["flow_height"] / da["u_bar"])
+    return out
+
+
+def compare_segregation_reference(run_dir, *, Ps_laws=None) -> dict:
+    """A bidisperse run of a campaign folder (``summary.json``, ``series.nc``, ``row.json``)
+    simulated with tracer heights (``tracers.npz``, ``python -m granflow.continuum.experiments
+    segregation-run``) against T-eq. (27), both fluxes.
+
+    For the segregation reference (``config/reference-segregation.yaml``), whose depth (24 d,
+    interface ~3 d wide) is what the shallow default's profile cannot resolve: Ps is the run's
+    steady-profile fit (the value its library's per-size-ratio cell holds), D the
+    self-diffusivity of its steady window (:func:`steady_diffusivity`: a closure measured in
+    steady flow, not on the transient it predicts; ``Ps_status`` / the D variant
+    ``_D_transient`` as in :func:`compare_segregation`).  ``Ps_laws``: {name: Ps} further Ps
+    values (e.g. a fitted T-eq. (29) law, the paper's) with which the symmetric model is also
+    run (``law:<name>`` entries: half-time and its error against the run)."""
+    run_dir = Path(run_dir)
+    row = json.loads((run_dir / "row.json").read_text())
+    if row.get("segregation_fit") is None:
+        raise ValueError(f"{run_dir}/row.json holds no segregation fit")
+    fit = {"fit": row["segregation_fit"], "profile": row["segregation_profile"]}
+    m = segregation_measurement(run_dir)
+    st = steady_diffusivity(run_dir)
+    Ps = float(fit["fit"]["params"]["Ps"])
+    out = segregation_against_model(m, fit, Ps=Ps, Ps_status=str(fit["fit"].get("status")),
+                                    D=st["D"], D_std=st["D_stderr"], tracer_dir=run_dir)
+    out["steady"] = st
+    out["D_steady_over_transient"] = st["D"] / out["D_transient"]
+    out["Ps_stderr"] = float(fit["fit"]["stderr"]["Ps"])
+    for name, ps in (Ps_laws or {}).items():
+        res = segregation_against_model(m, fit, Ps=float(ps), Ps_status="law", D=st["D"],
+                                        D_std=st["D_stderr"])
+        out[f"law:{name}"] = {"Ps": float(ps), **res["symmetric"]}
     return out
 
 
@@ -872,6 +941,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m granflow.continuum.experiments",
                                  description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("-v", "--verbose", action="store_true",
+                    help="log the simulations' progress (INFO) to stderr")
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("switch", help="restart a steady run at a new inclination")
     p.add_argument("parent")
@@ -892,6 +963,19 @@ def main(argv=None):
     p.add_argument("run")
     p.add_argument("--out", required=True)
     p.add_argument("--t-end", type=float, default=250.0)
+    p = sub.add_parser("segregation-run",
+                       help="simulate a campaign's bidisperse run (RUN/params.yaml) in its folder "
+                            "with tracers, then write its row.json as the campaign's row step")
+    p.add_argument("run", help="the run's campaign folder, holding params.yaml")
+    p.add_argument("--base", required=True)
+    p.add_argument("--rel", required=True, help="the run's path inside the campaign folder")
+    p.add_argument("--segregation-window", type=float, default=200.0)
+    p.add_argument("--tracer-interval", type=float, default=0.5)
+    p.add_argument("--threads", type=int, default=1)
+    p = sub.add_parser("compare-segregation",
+                       help="a segregation-run folder against T-eq. (27) -> JSON")
+    p.add_argument("run")
+    p.add_argument("--out", required=True, help="comparison JSON")
     p = sub.add_parser("compare", help="all comparisons -> JSON and figures")
     p.add_argument("--lib", required=True, help="closure library (with the diffusivity)")
     p.add_argument("--campaign", required=True)
@@ -902,6 +986,11 @@ def main(argv=None):
     p.add_argument("--segregation-tracers", default=None,
                    help="folder of sigma~<sigma> runs of segregation-tracers")
     a = ap.parse_args(argv)
+    if a.verbose:
+        import logging
+
+        logging.basicConfig(level=logging.INFO,
+                            format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     if a.cmd == "switch":
         res = run_switch(a.parent, a.theta2, a.out, t_end=a.t_end)
         print(f"{a.out}: {res['flow_state']} at t = {res['t_final']:.4g} ({res['wall_s']:.0f} s)")
@@ -922,11 +1011,58 @@ def main(argv=None):
     elif a.cmd == "segregation-tracers":
         res = run_segregation_tracers(a.run, a.out, t_end=a.t_end)
         print(f"{a.out}/tracers.npz: t = {res['t_final']:.4g} ({res['wall_s']:.0f} s)")
+    elif a.cmd == "segregation-run":
+        import yaml
+
+        from ..campaign.collect import write_row
+
+        params = yaml.safe_load((Path(a.run) / "params.yaml").read_text())
+        res = _simulate_with_tracers(params, a.run, a.tracer_interval, a.threads,
+                                     base_file=a.base)
+        write_row(a.run, Path(a.run) / "row.json", rel=a.rel,
+                  segregation_window=a.segregation_window)
+        print(f"{a.run}: {res['flow_state']} at t = {res['t_final']:.4g} ({res['wall_s']:.0f} s)"
+              f"; tracers.npz, row.json")
+    elif a.cmd == "compare-segregation":
+        from ..reference import SEGREGATION_PAPER_SETUP
+
+        sig = _summary(a.run)["params"]["sigma"]
+        fit = SEGREGATION_PAPER_SETUP["fit"]
+        laws = {"paper T-eq. 29": 7.35 * -math.expm1(-5.21 * (1.0 / sig - 1.0))}
+        if fit["form"] == "plateau":
+            laws["reference plateau"] = fit["Pmax"][0]
+        res = compare_segregation_reference(a.run, Ps_laws=laws)
+        _json_write(a.out, res)
+        print(format_segregation_reference(res))
     elif a.cmd == "compare":
         res = compare_all(a.lib, a.campaign, a.switch_runs, a.long_chute, a.out, a.figures,
                           segregation_tracers=a.segregation_tracers)
         print(format_tables(res))
     return 0
+
+
+def format_segregation_reference(r: dict) -> str:
+    """:func:`compare_segregation_reference`'s result as table lines."""
+    st = r["steady"]
+    lines = [f"{r['run']}: sigma {r['sigma']:g}, h {r['h']:.4g}, u_bar {r['u_bar']:.4g}, "
+             f"t0 {r['t0']:.4g}, s0 {r['s0']:.4g}, plateau {r['plateau']:.4g}, "
+             f"particle half-time {r['t_half']:.4g}",
+             f"D steady {st['D']:.4g} +- {st['D_stderr']:.2g} (c_D {st['c_D']:.4g} +- "
+             f"{st['c_D_stderr']:.2g}; small {st['D_small']:.4g}, large {st['D_large']:.4g}), "
+             f"D transient {r['D_transient']:.4g} +- {r['D_transient_stderr']:.2g}",
+             f"{'model':<34} {'Ps':>7} {'D':>8} {'t_half':>8} {'err':>8} {'phi rms':>8}"]
+    rows = [("symmetric", r["Ps"], r["D"]), ("asymmetric", r["Ps_asym"], r["D"]),
+            ("symmetric_D_transient", r["Ps"], r["D_transient"]),
+            ("asymmetric_D_transient", r["Ps_asym"], r["D_transient"])]
+    rows += [(k, r[k]["Ps"], r["D"]) for k in r if k.startswith("law:")]
+    for name, ps, d in rows:
+        v = r[name]
+        lines.append(f"{name:<34} {ps:7.4g} {d:8.4g} {v['t_half']:8.4g} "
+                     f"{100 * v['err_t_half']:+7.1f}% {v['phi_rms_vs_particles']:8.4f}")
+    if "Ps_matching_half_time" in r:
+        lines.append(f"Ps that gives the particles' half-time (D transient): "
+                     f"{r['Ps_matching_half_time']:.4g}")
+    return "\n".join(lines)
 
 
 def _long_chute_lines(title: str, lc: dict) -> list[str]:
