@@ -769,3 +769,40 @@ def test_steady_diffusivity_measures_the_steady_window_and_scales_it_to_c_D(tmp_
     assert r["D"] == pytest.approx(0.02, rel=0.1)
     assert r["c_D"] == pytest.approx(r["D"] * 20.0 / 8.0, rel=1e-12)
     assert r["c_D_stderr"] == pytest.approx(r["D_stderr"] * 2.5, rel=1e-12)
+
+
+def test_segregation_run_cli_writes_tracers_and_the_campaign_row(tmp_path):
+    """``python -m granflow.continuum.experiments segregation-run`` (the README's command for the
+    segregation reference, here on a 6 x 4 box to t = 2): the run's params.yaml simulated in its
+    folder with tracer heights every 0.5 of every flow particle, and the campaign's row step
+    written beside it (row.json names the run's size ratio and kind)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import yaml
+
+    rel = "segregation/linear/lambda~1/theta~25/H~5/sigma~0.5"
+    run = tmp_path / rel
+    run.mkdir(parents=True)
+    params = dict(theta=25.0, H=5.0, lam=1.0, Lx=6.0, Ly=4.0, sigma=0.5, phi0=0.5, t_c=0.02,
+                  t_end=2.0, base_layers=4.0, early_stop=False, seed=3)
+    (run / "params.yaml").write_text(yaml.safe_dump(params))
+    bin_ = Path(sys.executable).parent
+    subprocess.run([str(bin_ / "granflow"), "prepare-base", "--lam", "1", "--Lx", "6", "--Ly",
+                    "4", "--base-layers", "4", "--settle-time", "5", "--out",
+                    str(tmp_path / "base.npy")], check=True, capture_output=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-m", "granflow.continuum.experiments",
+                           "segregation-run", str(run), "--base", str(tmp_path / "base.npy"),
+                           "--rel", rel, "--tracer-interval", "0.5"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((run / "summary.json").read_text())
+    with np.load(run / "tracers.npz") as f:
+        t, z, d = f["time"], f["z"], f["diameter"]
+    assert np.allclose(np.diff(t), 0.5) and t[-1] == pytest.approx(2.0, abs=0.01)
+    assert z.shape == (t.size, summary["n_flow"]) == (t.size, d.size)
+    assert sorted(set(np.round(d, 9))) == [1.0, 2.0]  # small d = 1, large 1 / sigma
+    row = json.loads((run / "row.json").read_text())["row"]
+    assert (row["kind"], row["sigma"], row["run"]) == ("segregation", 0.5, rel)
