@@ -682,11 +682,18 @@ def segregation_against_model(m: dict, fit: dict, *, Ps: float, Ps_status: str, 
         # during its insertion fall before its shear is established (t0, s0).  Both clocks start
         # where s = s0: the model's at t_shift, where it reaches the particle run's s0; each
         # half-time runs from there to half the way to its own final segregation.
-        res = segregation_layer(D=D, h=m["h"], phi0=phi0, t_end=2.0 * t_end, n=200, n_out=401,
-                                **kw)
-        t_mod, s_mod = res.t.values, res.indicator.values
-        s_inf = float(res.indicator_steady)
-        th, t_shift = aligned_half_time(t_mod, s_mod, s_inf, s0)
+        # the model runs over twice the particle run, longer (up to 32x) where it is too slow
+        # to pass its half-way point within that: a slow model's half-time is measured, not NaN
+        t_model = 2.0 * t_end
+        for _ in range(5):
+            res = segregation_layer(D=D, h=m["h"], phi0=phi0, t_end=t_model, n=200, n_out=401,
+                                    **kw)
+            t_mod, s_mod = res.t.values, res.indicator.values
+            s_inf = float(res.indicator_steady)
+            th, t_shift = aligned_half_time(t_mod, s_mod, s_inf, s0)
+            if math.isfinite(th) or not abs(s_inf) > abs(s0) or s_inf * s0 < 0:
+                break
+            t_model *= 2.0
         start = t_shift if math.isfinite(t_shift) else 0.0  # unaligned: from the mixed start
         keep = t_mod >= start
         # the final profile at the particle run's end on the shifted clock
@@ -727,7 +734,40 @@ def steady_diffusivity(run_dir, *, tau_fit=(2.0, 10.0)) -> dict:
     return out
 
 
-def compare_segregation_reference(run_dir, *, Ps_laws=None) -> dict:
+#: a cut-short run's s(t) must be explained this well by its relaxation fit (R^2)
+RELAXATION_MIN_R2 = 0.9
+
+
+def relaxation_plateau(m: dict) -> dict:
+    """The plateau of a run stopped before its segregated state was shown steady: the
+    exponential relaxation s = s_inf + a exp(-t / tau) fitted to its s(t) after the start of
+    shear (:func:`granflow.steady.segregation.relaxation_projection`, the steady detector's own
+    projection), and the measurement ``m`` redone with s_inf as the plateau (``t_half`` the
+    crossing of half the way to it; ``tau_ln2`` the fit's)."""
+    from ..steady.segregation import relaxation_projection
+    from .segregation import half_time
+
+    t, ds = np.asarray(m["t"], float), np.asarray(m["s"], float)
+    rx = relaxation_projection(t, ds)
+    r2 = math.nan
+    if rx.identified:  # how much of s(t) the relaxation explains (noise fits a short tau too)
+        e = np.exp(-(t - t[0]) / rx.tau)
+        a = float(np.sum((ds - rx.s_inf) * e) / np.sum(e * e))
+        r2 = 1.0 - float(np.sum((ds - rx.s_inf - a * e) ** 2) / np.sum((ds - ds.mean()) ** 2))
+    if not (rx.identified and r2 >= RELAXATION_MIN_R2):
+        raise ValueError(f"{m['run']}: the relaxation of s(t) is not identified ({rx.how}; "
+                         f"explains {r2:.2f} of its variance, needs {RELAXATION_MIN_R2}); "
+                         "run it until its segregated state is shown steady")
+    plateau = float(m["s0"]) + rx.s_inf
+    out = dict(m, plateau=plateau, t_half=half_time(t, ds, 0.0, rx.s_inf),
+               plateau_source=f"relaxation fit ({rx.how}; run ended at t = "
+                              f"{m['t0'] + t[-1]:.5g} before its segregated state was shown steady)",
+               relaxation_tau=rx.tau, tau_ln2=rx.tau * math.log(2.0), relaxation_r2=r2,
+               fraction_reached=float(ds[-1] / rx.s_inf))
+    return out
+
+
+def compare_segregation_reference(run_dir, *, Ps_laws=None, Ps=None) -> dict:
     """A bidisperse run of a campaign folder (``summary.json``, ``series.nc``, ``row.json``)
     simulated with tracer heights (``tracers.npz``, ``python -m granflow.continuum.experiments
     segregation-run``) against T-eq. (27), both fluxes.
@@ -739,23 +779,41 @@ def compare_segregation_reference(run_dir, *, Ps_laws=None) -> dict:
     steady flow, not on the transient it predicts; ``Ps_status`` / the D variant
     ``_D_transient`` as in :func:`compare_segregation`).  ``Ps_laws``: {name: Ps} further Ps
     values (e.g. a fitted T-eq. (29) law, the paper's) with which the symmetric model is also
-    run (``law:<name>`` entries: half-time and its error against the run)."""
+    run (``law:<name>`` entries: half-time and its error against the run).
+
+    A run stopped before its segregated state was shown steady (a ``t_end`` cut) gets its
+    plateau from the relaxation fit (:func:`relaxation_plateau`; ``plateau_source`` says so)
+    and D from its transient (``D_source``); its profile is not steady, so give ``Ps`` (e.g. the
+    same configuration's steady value, recorded in :mod:`granflow.reference`)."""
     run_dir = Path(run_dir)
     row = json.loads((run_dir / "row.json").read_text())
     if row.get("segregation_fit") is None:
         raise ValueError(f"{run_dir}/row.json holds no segregation fit")
     fit = {"fit": row["segregation_fit"], "profile": row["segregation_profile"]}
     m = segregation_measurement(run_dir)
-    st = steady_diffusivity(run_dir)
-    Ps = float(fit["fit"]["params"]["Ps"])
-    out = segregation_against_model(m, fit, Ps=Ps, Ps_status=str(fit["fit"].get("status")),
-                                    D=st["D"], D_std=st["D_stderr"], tracer_dir=run_dir)
+    if m["segregation_steady"]:
+        st = steady_diffusivity(run_dir)
+        D, D_std, D_source = st["D"], st["D_stderr"], "steady window"
+    else:
+        # stopped early (e.g. a run cut short by its t_end): plateau by the relaxation fit; no
+        # steady window, so D is the transient's; Ps should be given (the profile is not steady)
+        m = relaxation_plateau(m)
+        st = None
+        th_p = m["t_half"] if math.isfinite(m["t_half"]) else 100.0
+        tr = transient_diffusivity(run_dir, m["t0"], m["t0"] + 2.0 * th_p)
+        D, D_std, D_source = tr["D"], tr["D_stderr"], "transient (no steady window)"
+    Ps_status = str(fit["fit"].get("status")) if Ps is None else "given"
+    Ps_stderr = float(fit["fit"]["stderr"]["Ps"]) if Ps is None else math.nan
+    Ps = float(fit["fit"]["params"]["Ps"]) if Ps is None else float(Ps)
+    out = segregation_against_model(m, fit, Ps=Ps, Ps_status=Ps_status, D=D, D_std=D_std,
+                                    tracer_dir=run_dir)
     out["steady"] = st
-    out["D_steady_over_transient"] = st["D"] / out["D_transient"]
-    out["Ps_stderr"] = float(fit["fit"]["stderr"]["Ps"])
+    out["D_source"] = D_source
+    out["D_steady_over_transient"] = st["D"] / out["D_transient"] if st else math.nan
+    out["Ps_stderr"] = Ps_stderr
+    out["Ps_profile_fit"] = float(fit["fit"]["params"]["Ps"])
     for name, ps in (Ps_laws or {}).items():
-        res = segregation_against_model(m, fit, Ps=float(ps), Ps_status="law", D=st["D"],
-                                        D_std=st["D_stderr"])
+        res = segregation_against_model(m, fit, Ps=float(ps), Ps_status="law", D=D, D_std=D_std)
         out[f"law:{name}"] = {"Ps": float(ps), **res["symmetric"]}
     return out
 
@@ -976,6 +1034,8 @@ def main(argv=None):
                        help="a segregation-run folder against T-eq. (27) -> JSON")
     p.add_argument("run")
     p.add_argument("--out", required=True, help="comparison JSON")
+    p.add_argument("--Ps", type=float, default=None,
+                   help="Ps for the model (default: the run's own steady-profile fit)")
     p = sub.add_parser("compare", help="all comparisons -> JSON and figures")
     p.add_argument("--lib", required=True, help="closure library (with the diffusivity)")
     p.add_argument("--campaign", required=True)
@@ -1031,7 +1091,7 @@ def main(argv=None):
         laws = {"paper T-eq. 29": 7.35 * -math.expm1(-5.21 * (1.0 / sig - 1.0))}
         if fit["form"] == "plateau":
             laws["reference plateau"] = fit["Pmax"][0]
-        res = compare_segregation_reference(a.run, Ps_laws=laws)
+        res = compare_segregation_reference(a.run, Ps_laws=laws, Ps=a.Ps)
         _json_write(a.out, res)
         print(format_segregation_reference(res))
     elif a.cmd == "compare":
@@ -1044,12 +1104,20 @@ def main(argv=None):
 def format_segregation_reference(r: dict) -> str:
     """:func:`compare_segregation_reference`'s result as table lines."""
     st = r["steady"]
+    tr = r["transient"]
     lines = [f"{r['run']}: sigma {r['sigma']:g}, h {r['h']:.4g}, u_bar {r['u_bar']:.4g}, "
              f"t0 {r['t0']:.4g}, s0 {r['s0']:.4g}, plateau {r['plateau']:.4g}, "
-             f"particle half-time {r['t_half']:.4g}",
-             f"D steady {st['D']:.4g} +- {st['D_stderr']:.2g} (c_D {st['c_D']:.4g} +- "
-             f"{st['c_D_stderr']:.2g}; small {st['D_small']:.4g}, large {st['D_large']:.4g}), "
-             f"D transient {r['D_transient']:.4g} +- {r['D_transient_stderr']:.2g}",
+             f"particle half-time {r['t_half']:.4g}"
+             + (f" (plateau from a {r['plateau_source']}; tau ln 2 = {r['tau_ln2']:.4g}, "
+                f"{100 * r['fraction_reached']:.0f} % of the way reached)"
+                if "plateau_source" in r else ""),
+             (f"D steady {st['D']:.4g} +- {st['D_stderr']:.2g} (c_D {st['c_D']:.4g} +- "
+              f"{st['c_D_stderr']:.2g}; small {st['D_small']:.4g}, large {st['D_large']:.4g}), "
+              if st else "no steady window; ")
+             + f"D transient {r['D_transient']:.4g} +- {r['D_transient_stderr']:.2g} (small "
+               f"{tr['D_small']:.4g}, large {tr['D_large']:.4g}; t {tr['t_from']:.4g}-"
+               f"{tr['t_to']:.4g}); model D: {r['D_source']}; Ps {r['Ps']:.4g} ({r['Ps_status']}; "
+               f"profile fit {r['Ps_profile_fit']:.4g})",
              f"{'model':<34} {'Ps':>7} {'D':>8} {'t_half':>8} {'err':>8} {'phi rms':>8}"]
     rows = [("symmetric", r["Ps"], r["D"]), ("asymmetric", r["Ps_asym"], r["D"]),
             ("symmetric_D_transient", r["Ps"], r["D_transient"]),
