@@ -88,6 +88,18 @@ README_COMMANDS = {
     ".venv/bin/python -m pytest -m slow tests/test_continuum_paper_slow.py":
         ("tests/test_continuum_paper_slow.py::test_switch_efolding_time_of_the_column_within_25_percent",
          "pytest -m slow (needs the lambda = 1 reference's results; skipped without them)"),
+    ".venv/bin/python -m granflow.continuum.experiments -v segregation-run RUN --base BASE "
+    "--rel REL":
+        ("tests/test_continuum.py::test_segregation_run_cli_writes_tracers_and_the_campaign_row",
+         "on a 6 x 4 box to t = 2, RUN holding the run's params.yaml"),
+    ".venv/bin/python -m granflow.continuum.experiments compare-segregation RUN --Ps 6.821 "
+    "--out seg.json":
+        ("tests/test_continuum_paper_slow.py::test_paper_segregation_half_time_within_20_percent",
+         "the same comparison (compare_segregation_reference, Ps 6.821) on the reference's run, "
+         "-m slow"),
+    ".venv/bin/python -m pytest -m slow tests/test_continuum_paper_slow.py -k paper_segregation":
+        ("tests/test_continuum_paper_slow.py::test_paper_segregation_half_time_within_20_percent",
+         "-m slow; needs the reference's run with tracers"),
     ".venv/bin/python -m pytest -m slow tests/test_reference_lambda1_slow.py":
         ("tests/test_reference_lambda1_slow.py::test_parameter_agrees_with_the_paper",
          "pytest -m slow (needs the lambda = 1 reference's results; skipped without them)"),
