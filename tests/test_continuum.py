@@ -829,3 +829,21 @@ def test_relaxation_plateau_of_a_run_cut_short_recovers_the_plateau_and_half_tim
     flat = dict(m, s=(0.01 * rng.standard_normal(t.size)).tolist())
     with pytest.raises(ValueError, match="not identified"):
         relaxation_plateau(flat)
+
+
+def test_segregation_commands_name_missing_inputs_before_any_compute(tmp_path):
+    """segregation-run without params.yaml or base, compare-segregation on a folder that is not
+    a finished segregation-run: exit 2 (argparse) naming each missing file, no output written."""
+    import subprocess
+    import sys
+
+    for args, names in (
+            (["segregation-run", str(tmp_path), "--base", str(tmp_path / "b.npy"), "--rel", "x"],
+             ["params.yaml", "b.npy"]),
+            (["compare-segregation", str(tmp_path), "--out", str(tmp_path / "o.json")],
+             ["summary.json", "series.nc", "row.json", "tracers.npz"])):
+        proc = subprocess.run([sys.executable, "-m", "granflow.continuum.experiments", *args],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2
+        assert all(n in proc.stderr for n in names), proc.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -1046,6 +1046,16 @@ def main(argv=None):
     p.add_argument("--segregation-tracers", default=None,
                    help="folder of sigma~<sigma> runs of segregation-tracers")
     a = ap.parse_args(argv)
+    need = {"segregation-run": lambda: [Path(a.run) / "params.yaml", Path(a.base)],
+            "compare-segregation": lambda: [Path(a.run) / f for f in (
+                "summary.json", "series.nc", "row.json", "tracers.npz")]}
+    if a.cmd in need:  # before any compute: name what is missing and what makes it
+        missing = [os.fspath(f) for f in need[a.cmd]() if not f.is_file()]
+        if missing:
+            ap.error(f"{a.cmd}: missing {', '.join(missing)} ("
+                     + ("the run's params.yaml comes from `granflow campaign run-params`, the "
+                        "base from `granflow prepare-base`" if a.cmd == "segregation-run" else
+                        "a finished `segregation-run` folder holds all four") + ")")
     if a.verbose:
         import logging
 
