@@ -646,12 +646,13 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
 
 def segregation_against_model(m: dict, fit: dict, *, Ps: float, Ps_status: str, D: float,
                               D_std: float, d_mean: float = 1.0, d_length: str = "small",
-                              tracer_dir=None) -> dict:
+                              tracer_dir=None, transient=None) -> dict:
     """The core of :func:`compare_segregation` with Ps and D given: ``m`` the run's
     :func:`segregation_measurement`, ``fit`` its entry of ``segregation_fits.json`` (or of its
     ``row.json``: ``{"fit": row["segregation_fit"], "profile": row["segregation_profile"]}``;
     the asymmetric flux's (Ps, kappa) and the steady profile come from it).  Used where Ps and D
-    come from a closure that is not a per-size-ratio cell of a library (a law, a measured D)."""
+    come from a closure that is not a per-size-ratio cell of a library (a law, a measured D).
+    ``transient``: :func:`transient_of` of the run, when the caller has it already."""
     from .segregation import segregation_layer
 
     phi0 = m["phi0"]
@@ -663,8 +664,7 @@ def segregation_against_model(m: dict, fit: dict, *, Ps: float, Ps_status: str, 
                Ps_asym=ex.get("asymmetric_Ps"), kappa=ex.get("asymmetric_kappa"))
     variants = [("", D, D_std)]
     if tracer_dir is not None:
-        th_p = m["t_half"] if math.isfinite(m["t_half"]) and m["t_half"] > 0 else 100.0
-        tr = transient_diffusivity(tracer_dir, m["t0"], m["t0"] + 2.0 * th_p)
+        tr = transient if transient is not None else transient_of(m, tracer_dir)
         out["transient"] = tr
         out["D_transient"], out["D_transient_stderr"] = tr["D"], tr["D_stderr"]
         out["D_closure_over_transient"] = D / tr["D"]
@@ -716,6 +716,13 @@ def segregation_against_model(m: dict, fit: dict, *, Ps: float, Ps_status: str, 
     out["zeta"] = zeta.tolist()
     out["phi_particles"] = phi_p.tolist()
     return out
+
+
+def transient_of(m: dict, tracer_dir) -> dict:
+    """:func:`transient_diffusivity` over a run's segregation transient: from its start of shear
+    t0 to two particle half-times after it (100 time units where it has none)."""
+    th_p = m["t_half"] if math.isfinite(m["t_half"]) and m["t_half"] > 0 else 100.0
+    return transient_diffusivity(tracer_dir, m["t0"], m["t0"] + 2.0 * th_p)
 
 
 def steady_diffusivity(run_dir, *, tau_fit=(2.0, 10.0)) -> dict:
@@ -799,14 +806,13 @@ def compare_segregation_reference(run_dir, *, Ps_laws=None, Ps=None) -> dict:
         # steady window, so D is the transient's; Ps should be given (the profile is not steady)
         m = relaxation_plateau(m)
         st = None
-        th_p = m["t_half"] if math.isfinite(m["t_half"]) else 100.0
-        tr = transient_diffusivity(run_dir, m["t0"], m["t0"] + 2.0 * th_p)
+        tr = transient_of(m, run_dir)
         D, D_std, D_source = tr["D"], tr["D_stderr"], "transient (no steady window)"
     Ps_status = str(fit["fit"].get("status")) if Ps is None else "given"
     Ps_stderr = float(fit["fit"]["stderr"]["Ps"]) if Ps is None else math.nan
     Ps = float(fit["fit"]["params"]["Ps"]) if Ps is None else float(Ps)
     out = segregation_against_model(m, fit, Ps=Ps, Ps_status=Ps_status, D=D, D_std=D_std,
-                                    tracer_dir=run_dir)
+                                    tracer_dir=run_dir, transient=None if st else tr)
     out["steady"] = st
     out["D_source"] = D_source
     out["D_steady_over_transient"] = st["D"] / out["D_transient"] if st else math.nan
