@@ -54,10 +54,28 @@ _clock_gettime.argtypes = [ctypes.c_int, ctypes.c_void_p]
 _clock_gettime.restype = ctypes.c_int
 CLOCK_MONOTONIC = 1
 CLOCK_PROCESS_CPUTIME_ID = 2
-#: clock of the profile: CPU time of the process by default (robust on a shared machine with one
-#: thread; ``--clock wall`` for more threads)
-CLOCK = CLOCK_PROCESS_CPUTIME_ID if os.environ.get("GRANFLOW_PROFILE_CLOCK", "cpu") == "cpu" \
-    else CLOCK_MONOTONIC
+
+
+def _threads_asked(argv) -> int:
+    """The ``--threads`` value on the command line (1 if absent): the clock is fixed at import,
+    before the numba loop compiles with it."""
+    for k, a in enumerate(argv):
+        if a == "--threads" and k + 1 < len(argv):
+            return int(argv[k + 1]) if argv[k + 1].isdigit() else 1
+        if a.startswith("--threads="):
+            v = a.split("=", 1)[1]
+            return int(v) if v.isdigit() else 1
+    return 1
+
+
+#: clock of the profile (``GRANFLOW_PROFILE_CLOCK=cpu|wall``): by default the process's CPU time
+#: at one thread (robust on a shared machine) and the wall clock at more (CPU time adds up the
+#: threads: a two-thread pass would read as twice its duration)
+_CLOCK_NAME = os.environ.get("GRANFLOW_PROFILE_CLOCK") or (
+    "cpu" if _threads_asked(sys.argv[1:]) <= 1 else "wall")
+if _CLOCK_NAME not in ("cpu", "wall"):
+    raise SystemExit(f"GRANFLOW_PROFILE_CLOCK must be cpu or wall, not {_CLOCK_NAME!r}")
+CLOCK = CLOCK_PROCESS_CPUTIME_ID if _CLOCK_NAME == "cpu" else CLOCK_MONOTONIC
 
 
 #: run the pair pass in this many runs of blocks (``--slots``; default: the number of threads),
