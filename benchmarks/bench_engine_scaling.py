@@ -6,7 +6,8 @@ protocol of ``bench_engine_vs_lammps.py`` (theta = 24 deg, lambda = 1, H = 20: ~
 the periodic x, y directions (an exact periodic image of the same flow) to get N from ~1.1e3 to
 ~1.1e5, and times ``ParticleSystem.step`` on each (``--repeat`` rounds over all sizes; at least
 ``--min-steps`` steps and ~``--seconds`` of work per run, so that every run contains neighbour-
-list rebuilds).  Prints particle-steps per second (best and median), their ratio to the
+list rebuilds; or ``--steps S`` at every size: the same stretch of the flow, which is the fair
+comparison, since the tiled start runs faster than the flow later on).  Prints particle-steps per second (best and median), their ratio to the
 smallest system, the load average, and the memory: bytes per particle held by the engine's
 arrays after the run (particles, pair list, contact history and rows, near list, work rows),
 and the growth of the process's peak resident memory per particle.
@@ -18,7 +19,7 @@ particle-steps per second, its own ratio to its smallest system, and granflow / 
 whether a drop with N is the engine's or the machine's memory system's.
 
     .venv/bin/python benchmarks/bench_engine_scaling.py [--tiles 1 2 3 5 7 10] [--repeat 3]
-        [--threads 1] [--lammps]
+        [--threads 1] [--lammps] [--steps 3000]
 """
 
 from __future__ import annotations
@@ -115,10 +116,18 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seconds", type=float, default=3.0, help="work per run (estimate)")
     ap.add_argument("--min-steps", type=int, default=1000)
+    ap.add_argument("--steps", type=int, default=0,
+                    help="the same number of steps at every N (the same stretch of the flow from "
+                         "the tiled start: the start runs faster than the long run, so equal "
+                         "work per N compares different stretches); default: ~--seconds of work")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--lammps", action="store_true",
                     help="run LAMMPS on the same systems (peer scaling, same rounds)")
     args = ap.parse_args(argv)
+    if args.steps < 0:
+        ap.error(f"--steps must be >= 1 (or 0: ~--seconds of work per size), not {args.steps}")
+    if args.repeat < 1 or args.min_steps < 1 or min(args.tiles) < 1 or args.threads < 1:
+        ap.error("--repeat, --min-steps, --tiles and --threads must be >= 1")
     import numba
 
     numba.set_num_threads(args.threads)
@@ -135,7 +144,7 @@ def main(argv=None):
     for r in range(args.repeat):
         for k in args.tiles:
             s = tiled_system(state, k, k)
-            steps = max(args.min_steps, int(args.seconds * 2.0e7 / s.n))
+            steps = args.steps or max(args.min_steps, int(args.seconds * 2.0e7 / s.n))
             load = os.getloadavg()[0]
             t0 = time.perf_counter()
             s.step(steps)
