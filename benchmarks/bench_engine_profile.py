@@ -57,15 +57,12 @@ CLOCK_PROCESS_CPUTIME_ID = 2
 
 
 def _threads_asked(argv) -> int:
-    """The ``--threads`` value on the command line (1 if absent): the clock is fixed at import,
-    before the numba loop compiles with it."""
-    for k, a in enumerate(argv):
-        if a == "--threads" and k + 1 < len(argv):
-            return int(argv[k + 1]) if argv[k + 1].isdigit() else 1
-        if a.startswith("--threads="):
-            v = a.split("=", 1)[1]
-            return int(v) if v.isdigit() else 1
-    return 1
+    """The ``--threads`` value on the command line (1 if absent or not a number: ``main``'s
+    parser reports it): the clock is fixed at import, before the numba loop compiles with it."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--threads", default="1")
+    v = pre.parse_known_args(argv)[0].threads
+    return int(v) if v.isdigit() else 1
 
 
 #: clock of the profile (``GRANFLOW_PROFILE_CLOCK=cpu|wall``): by default the process's CPU time

@@ -7,8 +7,9 @@ the periodic x, y directions (an exact periodic image of the same flow) to get N
 ~1.1e5, and times ``ParticleSystem.step`` on each (``--repeat`` rounds over all sizes; at least
 ``--min-steps`` steps and ~``--seconds`` of work per run, so that every run contains neighbour-
 list rebuilds; or ``--steps S`` at every size: the same stretch of the flow, which is the fair
-comparison, since the tiled start runs faster than the flow later on).  Prints particle-steps per second (best and median), their ratio to the
-smallest system, the load average, and the memory: bytes per particle held by the engine's
+comparison, since the tiled start runs faster than the flow later on).  Prints particle-steps
+per second (best and median), their ratio to the smallest system, the load average, and the
+memory: bytes per particle held by the engine's
 arrays after the run (particles, pair list, contact history and rows, near list, work rows),
 and the growth of the process's peak resident memory per particle.
 
