@@ -13,6 +13,9 @@
   and K from the library: :func:`shallow_layer`; optionally with the depth-averaged viscous
   stress of Gray & Edwards (2014) (``viscosity=``, nu from
   :meth:`FlowClosures.gray_edwards_viscosity`: no parameter beyond the library's).
+* :mod:`.kinematic` -- the local-equilibrium limit of Eq. (34): mu(h, F) = tan(theta) - K dh/dx
+  (diffusive wave) or = tan(theta) (kinematic wave), only the mass balance left:
+  :func:`local_equilibrium_layer` (no parameter beyond the library's mu(h, F) and K).
 * :mod:`.segregation` -- segregation and diffusive remixing in depth, Thornton et al. T-eq. (27)
   with the symmetric flux or the asymmetric flux of seed 001: :func:`segregation_layer`.
 * :mod:`.closures` -- :class:`FlowClosures`: a library's mu(h, F), alpha(h), K at one
@@ -38,8 +41,8 @@ Example: open a library and run each model ::
     import numpy as np
     import granflow
     from granflow.closures import open_library
-    from granflow.continuum import (FlowClosures, segregation_layer, shallow_layer,
-                                    switch_prediction)
+    from granflow.continuum import (FlowClosures, local_equilibrium_layer, segregation_layer,
+                                    shallow_layer, switch_prediction)
     from granflow.continuum.experiments import segregation_Ps_at
 
     # the campaign's library with the diffusivity closure added (granflow.continuum.experiments
@@ -60,6 +63,8 @@ Example: open a library and run each model ::
     h0 = 7.0 + 2.0 * np.exp(-((x - 50.0) / 8.0) ** 2)
     u0 = c.steady_froude(h0) * np.sqrt(c.g_cos * h0)
     res = shallow_layer(c, x, h0, u0, t_end=100.0)
+    #    ... in local equilibrium (the diffusive-wave limit: u follows h)
+    res_le = local_equilibrium_layer(c, x, h0, t_end=100.0)
     #    ... and with the depth-averaged viscous stress (Gray & Edwards 2014), nu from the
     #    library's own flow rule at the mean depth
     res_v = shallow_layer(c, x, h0, u0, t_end=100.0,
@@ -74,10 +79,12 @@ Example: open a library and run each model ::
 from .closures import FlowClosures
 from .column import column_layer
 from .exact import dam_break_front, mangeney_dam_break
+from .kinematic import equilibrium_froude, local_equilibrium_layer
 from .segregation import segregation_layer
 from .shallow import shallow_layer
 from .uniform import fit_relaxation, linear_relaxation_time, switch_prediction, uniform_layer
 
 __all__ = ["FlowClosures", "uniform_layer", "column_layer", "switch_prediction", "fit_relaxation",
-           "linear_relaxation_time", "shallow_layer", "segregation_layer",
+           "linear_relaxation_time", "shallow_layer", "local_equilibrium_layer",
+           "equilibrium_froude", "segregation_layer",
            "mangeney_dam_break", "dam_break_front"]
