@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from granflow.continuum import (FlowClosures, dam_break_front, fit_relaxation,
-                                linear_relaxation_time, mangeney_dam_break, segregation_layer,
-                                shallow_layer, switch_prediction, uniform_layer)
+                                linear_relaxation_time, local_equilibrium_layer,
+                                mangeney_dam_break, segregation_layer, shallow_layer,
+                                switch_prediction, uniform_layer)
 from granflow.continuum.segregation import half_time, steady_profile
 from granflow.fitting.flow_rule import mu_eq50
 from granflow.fitting.hstop import hstop_eq45
@@ -539,7 +540,9 @@ def test_model_results_are_cf_compliant(tmp_path):
                "column": column_layer(c, 8.0, 0.3, 20.0, n_z=16, n_out=21),
                "shallow": shallow_layer(c, x, 6.0 + np.exp(-((x - 10) / 3) ** 2), 0.5, 5.0,
                                         n_out=3),
-               "segregation": segregation_layer(6.0, 0.02, 8.0, 0.5, 50.0, n=40, n_out=6)}
+               "segregation": segregation_layer(6.0, 0.02, 8.0, 0.5, 50.0, n=40, n_out=6),
+               "kinematic": local_equilibrium_layer(c, x, 6.0 + np.exp(-((x - 10) / 3) ** 2),
+                                                    2.0, diffusive=False, n_out=3)}
     for name, ds in results.items():
         path = tmp_path / f"{name}.nc"
         atomic_to_netcdf(ds, path)
