@@ -769,7 +769,8 @@ if comparison is not None and comparison["switches"]:
 # ### 2. Shallow-layer equations (Eq. 34) in one dimension
 # A bump on the uniform steady flow of the thinnest steady thick run, on a periodic domain of
 # length 100, with the library's mu(h, F), alpha and K; with a long-chute particle run: the
-# distance travelled by the peak and the front, particles against the solver.
+# distance travelled by the peak and the front, particles against the solver (solid) and its
+# local-equilibrium limit, the kinematic wave u = u_s(h) (dotted).
 
 # %%
 flow_closures = None
@@ -801,6 +802,11 @@ if flow_closures is not None:
                          color=colour, label=f"{f}: particles")
             axes[1].plot(t, [q[f"{f}_travel_solver"] for q in lc["rows"]], "-", color=colour,
                          label=f"{f}: solver")
+            lk = comparison.get("long_chute_kinematic")
+            if lk and "error" not in lk:
+                axes[1].plot([q["t"] for q in lk["rows"]],
+                             [q[f"{f}_travel_solver"] for q in lk["rows"]], ":", color=colour,
+                             label=f"{f}: kinematic wave")
         axes[1].set_xlabel("t")
         axes[1].set_ylabel("distance travelled")
         axes[1].legend(fontsize=6)

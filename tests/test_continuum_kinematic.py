@@ -127,3 +127,28 @@ def test_local_equilibrium_layer_rejects_bad_input():
         local_equilibrium_layer(eq50(-5.0), x, np.full(10, 5.0), 1.0)
     with pytest.raises(ValueError, match="uniformly spaced"):
         local_equilibrium_layer(c, x ** 2, np.full(10, 5.0), 1.0)
+
+
+def test_long_chute_comparison_refuses_bad_model_choices_before_reading_anything(tmp_path):
+    from granflow.continuum import experiments as ex
+
+    missing = tmp_path / "no_such_columns.nc"
+    with pytest.raises(ValueError, match="model"):
+        ex.compare_long_chute(None, missing, 0.58, 25.0, model="bore")
+    with pytest.raises(ValueError, match="viscosity"):
+        ex.compare_long_chute(None, missing, 0.58, 25.0, model="kinematic_wave",
+                              viscosity="gray_edwards")
+    with pytest.raises(ValueError, match="n_ensemble"):
+        ex.compare_long_chute(None, missing, 0.58, 25.0, n_ensemble=10)
+
+
+def test_ensemble_band_error_is_zero_inside_and_the_nearer_edge_outside():
+    from granflow.continuum.experiments import _band_err
+
+    row = {"front_travel_particles": 50.0, "front_travel_solver_lo": 40.0,
+           "front_travel_solver_hi": 55.0}
+    assert _band_err(row, "front") == 0.0
+    assert _band_err(dict(row, front_travel_particles=80.0), "front") == pytest.approx(
+        1 - 55.0 / 80.0)
+    assert _band_err(dict(row, front_travel_particles=20.0), "front") == pytest.approx(1.0)
+    assert math.isnan(_band_err(dict(row, front_travel_particles=0.0), "front"))

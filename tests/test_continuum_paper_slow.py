@@ -78,6 +78,8 @@ def comparison():
     rho = ex._summary(RUNS / "theta~26" / "H~10")["depth_averages"]["rho_bar"]
     for key, visc in (("long_chute", None), ("long_chute_viscous", "gray_edwards")):
         out[key] = ex.compare_long_chute(lib, lc / "columns.nc", rho, 26.0, viscosity=visc)
+    out["long_chute_kinematic"] = ex.compare_long_chute(lib, lc / "columns.nc", rho, 26.0,
+                                                        model="kinematic_wave")
     return out
 
 
@@ -110,12 +112,16 @@ def test_switch_efolding_time_of_the_column_within_25_percent(comparison, th1, H
     assert abs(s["err_tau_column"]) <= ex.TOL_TAU, s["err_tau_column"]
 
 
-@pytest.mark.parametrize("model", ["long_chute", "long_chute_viscous"])
+@pytest.mark.parametrize("model", ["long_chute", "long_chute_viscous", "long_chute_kinematic"])
 @pytest.mark.parametrize("feature", ["peak", "front"])
 def test_long_chute_positions_within_15_percent(comparison, request, model, feature):
-    """Eq. (34) as the paper writes it, and with the Gray-Edwards viscous stress (nu from the
-    library's flow rule), from the particle run's own h(x), u_bar(x) at t = 0."""
-    key = f"paper_{'long' if model == 'long_chute' else 'long_viscous'}:{feature}"
+    """Eq. (34) as the paper writes it, with the Gray-Edwards viscous stress (nu from the
+    library's flow rule), from the particle run's own h(x), u_bar(x) at t = 0, and its
+    kinematic-wave limit (u = u_s(h) of the library's steady flow rule, from h(x) alone; not
+    yet run at the paper's species when it was added, 2026-12-02: on the soft campaign's chute
+    its peak is within 15 % and its front -15 ... -23 %)."""
+    key = "paper_" + {"long_chute": "long", "long_chute_viscous": "long_viscous",
+                      "long_chute_kinematic": "long_kinematic_wave"}[model] + f":{feature}"
     if key in KNOWN:
         request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
     lc = comparison[model]

@@ -9,7 +9,8 @@ species t_c = 0.02, 10 x 5 boxes; about 15 min on 2 shared cores, the tracer run
 then every comparison is computed afresh from the run folders.  Tolerances of issue 17: steady
 u_bar within 5 % and e-folding time within 25 % after a change of inclination (uniform-layer
 ODE and depth-resolved column); peak/front
-positions of the long chute within 15 %; half-segregation time within 20 % (both flux models,
+positions of the long chute within 15 % (Eq. 34, with the viscous stress, and its
+local-equilibrium limits, the kinematic and diffusive waves); half-segregation time within 20 % (both flux models,
 and with D measured over the run's own transient).  Cases that fail are expected failures with
 the measured reason (``xfail(strict=True)``: they must keep failing, or the marker is removed).
 """
@@ -137,6 +138,21 @@ def test_long_chute_with_viscous_stress_within_15_percent(comparison, feature):
     assert lv["worst_err_after_quarter"][feature] <= ex.TOL_POSITION
 
 
+@pytest.mark.parametrize("model", ["kinematic_wave", "diffusive_wave"])
+@pytest.mark.parametrize("feature", ["peak", "front"])
+def test_long_chute_in_local_equilibrium_within_15_percent(comparison, request, model, feature):
+    """The local-equilibrium limits of Eq. (34) (granflow.continuum.kinematic: u follows h, from
+    the particle run's h(x) at t = 0 alone): the kinematic wave u = u_s(h) of the library's
+    steady flow rule, and the diffusive wave mu(h, F) = tan(theta) - K dh/dx."""
+    key = f"long_{model}:{feature}"
+    if key in KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
+    lk = comparison["long_chute_kinematic" if model == "kinematic_wave" else "long_chute_diffusive"]
+    assert "error" not in lk, lk.get("error")
+    assert lk["model"] == model
+    assert lk["worst_err_after_quarter"][feature] <= ex.TOL_POSITION
+
+
 @pytest.mark.parametrize("flux", ["symmetric", "asymmetric"])
 @pytest.mark.parametrize("sigma", [0.5, 0.6, 0.7, 0.8, 0.9])
 def test_segregation_half_time_within_20_percent(comparison, request, flux, sigma):
@@ -206,6 +222,8 @@ def test_package_example_runs_on_the_comparison_library(comparison):
     assert float(abs(ns["res"].mass[-1] / ns["res"].mass[0] - 1)) < 1e-12
     assert float(abs(ns["res_v"].mass[-1] / ns["res_v"].mass[0] - 1)) < 1e-12
     assert ns["res_v"].attrs["viscosity"] > 0
+    assert float(abs(ns["res_kw"].mass[-1] / ns["res_kw"].mass[0] - 1)) < 1e-12
+    assert ns["res_kw"].attrs["continuum_model"] == "kinematic_wave"
     # the viscous stress damps the bump's velocity differences
     assert np.ptp(ns["res_v"].u_bar.values[-1]) < np.ptp(ns["res"].u_bar.values[-1])
     lib = ns["lib"]

@@ -63,8 +63,9 @@ Example: open a library and run each model ::
     h0 = 7.0 + 2.0 * np.exp(-((x - 50.0) / 8.0) ** 2)
     u0 = c.steady_froude(h0) * np.sqrt(c.g_cos * h0)
     res = shallow_layer(c, x, h0, u0, t_end=100.0)
-    #    ... in local equilibrium (the diffusive-wave limit: u follows h)
-    res_le = local_equilibrium_layer(c, x, h0, t_end=100.0)
+    #    ... in local equilibrium, the kinematic wave u = u_s(h) of the library's flow rule
+    #    (the one model within 15 % of a particle bump's peak, README)
+    res_kw = local_equilibrium_layer(c, x, h0, t_end=100.0, diffusive=False)
     #    ... and with the depth-averaged viscous stress (Gray & Edwards 2014), nu from the
     #    library's own flow rule at the mean depth
     res_v = shallow_layer(c, x, h0, u0, t_end=100.0,

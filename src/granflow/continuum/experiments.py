@@ -16,8 +16,10 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   thicker flow make a bump), run with x-resolved depth-integrated coarse-graining
   (:mod:`granflow.coarse.columns`), and the shallow-layer solver started from the same h(x),
   u_bar(x): positions of the peak and of the front over time; Eq. (34) as the paper writes it
-  (``long_chute``) and with the depth-averaged viscous stress of Gray & Edwards (2014), nu from
-  the library's flow rule at the mean depth (``long_chute_viscous``).
+  (``long_chute``), with the depth-averaged viscous stress of Gray & Edwards (2014), nu from
+  the library's flow rule at the mean depth (``long_chute_viscous``), and its local-equilibrium
+  limits, the kinematic wave (``long_chute_kinematic``) and the diffusive wave
+  (``long_chute_diffusive``) of :mod:`granflow.continuum.kinematic`.
 * **Segregation** (:func:`compare_segregation`): the campaign's bidisperse runs' indicator s(t)
   against T-eq. (27) with the library's Ps and the measured diffusivity D (both flux models);
   the half-time counts from the run's s0 at its flow start t0 in both, the model's clock shifted
@@ -68,6 +70,9 @@ TOL_STEADY_U = 0.05
 TOL_TAU = 0.25
 TOL_POSITION = 0.15
 TOL_HALF_TIME = 0.20
+
+#: models of the long-chute comparison (:func:`compare_long_chute`)
+LONG_CHUTE_MODELS = ("shallow", "kinematic_wave", "diffusive_wave")
 
 #: length scale of the diffusivity closure D = c_D (u_bar/h) d^2 in a bidisperse layer, in
 #: small-particle diameters: "small" (d = 1, as measured over the segregation transients by
@@ -446,15 +451,31 @@ def feature_positions(x, h, x_prev=None, L=None):
 
 def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
                        allow_unidentified=True, extrapolate=True, out_nc=None,
-                       viscosity=None) -> dict:
+                       viscosity=None, model="shallow", n_ensemble: int = 0) -> dict:
     """Shallow-layer solver from the particle run's initial h(x), u_bar(x); positions of peak
     and front over time, particle vs solver.  ``viscosity``: None (Eq. 34 as the paper
     writes it), ``"gray_edwards"`` (with the depth-averaged viscous stress, nu from the
     closures' steady flow rule at the layer's mean depth,
-    :meth:`FlowClosures.gray_edwards_viscosity`) or a number nu."""
+    :meth:`FlowClosures.gray_edwards_viscosity`) or a number nu.  ``model``: ``"shallow"``
+    (Eq. 34, :func:`shallow_layer`) or its local-equilibrium limits ``"kinematic_wave"`` /
+    ``"diffusive_wave"`` (:func:`granflow.continuum.local_equilibrium_layer`, from h(x)
+    alone: u follows h).  ``n_ensemble`` > 0 (local-equilibrium models only): the same
+    prediction for that many members of the friction closure's parameter ensemble; each row
+    gets the members' 16-84 % range of the distances travelled (``*_travel_solver_lo/hi``) and
+    ``worst_err_after_quarter_band`` the worst error of the band's nearer edge (0 where the
+    particles lie inside it)."""
     from ..coarse.columns import column_fields
     from .closures import FlowClosures
+    from .kinematic import local_equilibrium_layer
     from .shallow import shallow_layer
+
+    if model not in LONG_CHUTE_MODELS:
+        raise ValueError(f"model = {model!r} is not one of {LONG_CHUTE_MODELS}")
+    if model != "shallow" and viscosity is not None:
+        raise ValueError(f"viscosity is a term of the shallow-layer model, not of {model!r}")
+    if n_ensemble and model == "shallow":
+        raise ValueError("n_ensemble is implemented for the local-equilibrium models only "
+                         "(the shallow-layer solver takes minutes per member)")
 
     part = column_fields(xr.open_dataset(columns_nc), rho_bar)
     x = part.x.values
@@ -470,8 +491,13 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
         nu = c.gray_edwards_viscosity(h_mean)
     else:
         nu = float(viscosity)
-    sol = shallow_layer(c, x, h0, u0, float(times[-1]), times=times, check=True,
-                        extrapolate=extrapolate, viscosity=nu)
+    if model == "shallow":
+        sol = shallow_layer(c, x, h0, u0, float(times[-1]), times=times, check=True,
+                            extrapolate=extrapolate, viscosity=nu)
+    else:
+        sol = local_equilibrium_layer(c, x, h0, float(times[-1]), times=times, check=True,
+                                      extrapolate=extrapolate,
+                                      diffusive=model == "diffusive_wave")
     if out_nc is not None:
         atomic_to_netcdf(sol, out_nc)
     L = float(part.attrs.get("cg_Lx", x[-1] + x[0]))
@@ -497,6 +523,35 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
                 "h_solver": [sol.h.values[k].tolist() for k in snap]}
     late = [r for r in rows if r["t"] >= 0.25 * times[-1]]
     worst = {f: max(abs(r[f"{f}_err"]) for r in late) for f in ("peak", "front")}
+    band = None
+    if n_ensemble and model != "shallow":
+        members = c.ensemble(int(n_ensemble))
+        travel = {f: [] for f in ("peak", "front")}
+        for cm in members:
+            try:
+                sm = local_equilibrium_layer(cm, x, h0, float(times[-1]), times=times,
+                                             check=False, diffusive=model == "diffusive_wave")
+            except RuntimeError:  # a member that arrests or accelerates the layer: dropped
+                continue
+            prev = None
+            tr = {f: [] for f in travel}
+            for k in range(len(times)):
+                prev = feature_positions(x, sm.h.values[k], prev, L)
+                tr["peak"].append(prev[0])
+                tr["front"].append(prev[1])
+            for f in travel:
+                travel[f].append(np.asarray(tr[f]) - tr[f][0])
+        n_used = len(travel["peak"])
+        band = {"n_members": n_used, "n_members_dropped": len(members) - n_used
+                + int(getattr(members, "ensemble_dropped", 0))}
+        if n_used >= 10:
+            for f in travel:
+                lo, hi = np.percentile(np.array(travel[f]), [16, 84], axis=0)
+                for r, a, b in zip(rows, lo, hi):
+                    r[f"{f}_travel_solver_lo"] = float(a)
+                    r[f"{f}_travel_solver_hi"] = float(b)
+            band["worst_err_after_quarter_band"] = {
+                f: max(_band_err(r, f) for r in late) for f in ("peak", "front")}
     return {"rows": rows, "profiles": profiles, "worst_err_after_quarter": worst,
             "rho_bar": rho_bar, "closure_K": c.K, "shallow_layer_attrs": {
                 k: v for k, v in sol.attrs.items() if k.startswith(("closure_", "scheme", "n_"))},
@@ -506,7 +561,20 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
             "fraction_outside_fitted_range_max": float(np.nanmax(
                 sol.fraction_outside_fitted_range.values)) if rng else math.nan,
             "viscosity": nu, "viscosity_model": viscosity or "none", "h_mean": h_mean,
+            "model": model, "ensemble_band": band,
             "pass": bool(max(worst.values()) <= TOL_POSITION)}
+
+
+def _band_err(row, f) -> float:
+    """|error| of the nearer edge of the ensemble's 16-84 % band of distances travelled against
+    the particles' distance (0 inside the band)."""
+    dp = row[f"{f}_travel_particles"]
+    lo, hi = row[f"{f}_travel_solver_lo"], row[f"{f}_travel_solver_hi"]
+    if abs(dp) <= 1e-9:
+        return math.nan
+    if lo <= dp <= hi:
+        return 0.0
+    return min(abs(lo / dp - 1.0), abs(hi / dp - 1.0))
 
 
 # ----------------------------------------------------------------------------- segregation
@@ -889,6 +957,16 @@ def compare_all(lib_path, campaign_dir, switch_dirs, long_chute_dir, out_json, f
                 viscosity="gray_edwards")
         except ValueError as exc:  # no steady flow at the mean depth: reported
             res["long_chute_viscous"] = {"error": f"{type(exc).__name__}: {exc}"}
+        # and in local equilibrium: the kinematic wave (u = the steady flow rule's u_s(h))
+        for key, model in (("long_chute_kinematic", "kinematic_wave"),
+                           ("long_chute_diffusive", "diffusive_wave")):
+            try:
+                res[key] = compare_long_chute(
+                    lib, Path(long_chute_dir) / "columns.nc", rho, theta, model=model,
+                    out_nc=Path(long_chute_dir) / f"{model}.nc",
+                    n_ensemble=n_ensemble if model == "kinematic_wave" else 0)
+            except (ValueError, RuntimeError) as exc:
+                res[key] = {"error": f"{type(exc).__name__}: {exc}"}
     seg_fits = json.loads((Path(campaign_dir) / "segregation_fits.json").read_text())
     for run in sorted(Path(campaign_dir).glob("segregation/**/summary.json")):
         try:
@@ -966,6 +1044,11 @@ def plot_all(res: dict, figures) -> list:
                 ax.plot([r["t"] for r in lv["rows"]],
                         [r[f"{f}_travel_solver"] for r in lv["rows"]], "--", color=c,
                         label=f"{f}: with viscous stress (nu = {lv['viscosity']:.2f})")
+            lk = res.get("long_chute_kinematic")
+            if lk and "error" not in lk:
+                ax.plot([r["t"] for r in lk["rows"]],
+                        [r[f"{f}_travel_solver"] for r in lk["rows"]], ":", color=c,
+                        label=f"{f}: kinematic wave")
         ax.set_xlabel("t")
         ax.set_ylabel("distance travelled (d)")
         ax.legend(fontsize=7)
@@ -1153,11 +1236,25 @@ def _long_chute_lines(title: str, lc: dict) -> list[str]:
     """A long-chute comparison as table lines (distances travelled, particles vs solver)."""
     lines = ["", title, f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} "
                         f"{'front_s':>8} {'err':>7}"]
+    banded = "peak_travel_solver_lo" in lc["rows"][0] if lc["rows"] else False
+    if banded:
+        lines[-1] += f" {'peak_s 16-84 %':>15} {'front_s 16-84 %':>15}"
     for r in lc["rows"]:
-        lines.append(f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
-                     f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
-                     f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
-                     f"{r['front_err']:+7.1%}")
+        line = (f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
+                f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
+                f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
+                f"{r['front_err']:+7.1%}")
+        if banded:
+            line += "".join(f" {r[f + '_travel_solver_lo']:7.2f}-{r[f + '_travel_solver_hi']:<7.2f}"
+                            for f in ("peak", "front"))
+        lines.append(line)
+    band = lc.get("ensemble_band")
+    if band and "worst_err_after_quarter_band" in band:
+        w = band["worst_err_after_quarter_band"]
+        lines.append(f"closure ensemble ({band['n_members']} members, "
+                     f"{band['n_members_dropped']} dropped): worst error of the band's nearer "
+                     f"edge after a quarter of the run: peak {w['peak']:.1%}, front "
+                     f"{w['front']:.1%}")
     return lines
 
 
@@ -1194,6 +1291,15 @@ def format_tables(res: dict) -> str:
         lines += _long_chute_lines(f"long chute with the Gray-Edwards viscous stress (nu = "
                                    f"{lv['viscosity']:.3f} at the mean depth "
                                    f"{lv['h_mean']:.2f})", lv)
+    for key, title in (("long_chute_kinematic", "long chute, kinematic wave (local "
+                                                "equilibrium u = u_s(h))"),
+                       ("long_chute_diffusive", "long chute, diffusive wave (local equilibrium "
+                                                "mu(h, F) = tan(theta) - K dh/dx)")):
+        lk = res.get(key)
+        if lk and "error" in lk:
+            lines += ["", f"{title}: {lk['error']}"]
+        elif lk:
+            lines += _long_chute_lines(title, lk)
     lines += ["", "segregation (half-time after the start-up, final profile rms)",
               f"{'sigma':>5} {'t_half_p':>8} {'sym':>14} {'err':>7} {'asym':>14} {'err':>7} "
               f"{'rms_sym':>7} {'rms_asym':>8} {'D':>8} {'Ps':>6}"]
