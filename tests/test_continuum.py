@@ -836,7 +836,8 @@ def test_relaxation_plateau_of_a_run_cut_short_recovers_the_plateau_and_half_tim
 
 def test_segregation_commands_name_missing_inputs_before_any_compute(tmp_path):
     """segregation-run without params.yaml or base, compare-segregation on a folder that is not
-    a finished segregation-run: exit 2 (argparse) naming each missing file, no output written."""
+    a finished segregation-run, compare-long-chute without its run or library: exit 2
+    (argparse) naming each missing file, no output written."""
     import subprocess
     import sys
 
@@ -844,7 +845,9 @@ def test_segregation_commands_name_missing_inputs_before_any_compute(tmp_path):
             (["segregation-run", str(tmp_path), "--base", str(tmp_path / "b.npy"), "--rel", "x"],
              ["params.yaml", "b.npy"]),
             (["compare-segregation", str(tmp_path), "--out", str(tmp_path / "o.json")],
-             ["summary.json", "series.nc", "row.json", "tracers.npz"])):
+             ["summary.json", "series.nc", "row.json", "tracers.npz"]),
+            (["compare-long-chute", str(tmp_path), "--closures", str(tmp_path / "lib.nc"),
+              "--out", str(tmp_path / "o.json")], ["columns.nc", "lib.nc"])):
         proc = subprocess.run([sys.executable, "-m", "granflow.continuum.experiments", *args],
                               capture_output=True, text=True, timeout=120)
         assert proc.returncode == 2

@@ -152,3 +152,17 @@ def test_ensemble_band_error_is_zero_inside_and_the_nearer_edge_outside():
         1 - 55.0 / 80.0)
     assert _band_err(dict(row, front_travel_particles=20.0), "front") == pytest.approx(1.0)
     assert math.isnan(_band_err(dict(row, front_travel_particles=0.0), "front"))
+
+
+def test_paper_closures_are_table1_table2_and_eq53():
+    c = FlowClosures.paper(26.0)
+    hs = float(P1["A"] * (MU2 - math.tan(math.radians(26.0)))
+               / (math.tan(math.radians(26.0)) - MU1))  # Eq. (45)
+    for h in (5.0, 10.0, 20.0):
+        assert c.steady_froude(h) == pytest.approx(P1["beta"] * h / hs - P1["gamma"], rel=1e-10)
+    assert c.K == pytest.approx(1 + (26.0 - 21.50) / 132.0, rel=1e-14)
+    assert c.status == {"friction": "paper", "alpha": "paper", "stress_ratio": "paper"}
+    # lambda = 1/2: Table 2's constant alpha
+    assert float(FlowClosures.paper(24.0, 0.5).alpha(np.array([8.0]))[0]) == 1.142
+    with pytest.raises(ValueError, match="lam"):
+        FlowClosures.paper(26.0, 0.0)

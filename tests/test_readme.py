@@ -85,6 +85,15 @@ README_COMMANDS = {
     ".venv/bin/python -m pytest -m slow tests/test_continuum_slow.py -k switch":
         ("tests/test_continuum_slow.py::test_switch_efolding_time_of_the_column_within_25_percent",
          "pytest -m slow (needs the continuum-soft campaign; skipped without it)"),
+    ".venv/bin/python -m pytest -m slow tests/test_continuum_slow.py -k long_chute":
+        ("tests/test_continuum_slow.py::test_long_chute_in_local_equilibrium_within_15_percent",
+         "pytest -m slow (needs the continuum-soft campaign; skipped without it)"),
+    ".venv/bin/python -m granflow.continuum.experiments compare-long-chute "
+    "results/continuum-paper/long_chute --closures paper --model kinematic_wave":
+        ("tests/test_continuum_paper_slow.py::"
+         "test_kinematic_wave_with_the_paper_closures_within_15_percent",
+         "as written, with --out, -m slow (makes the reference's two 26 deg runs and the "
+         "long chute when missing)"),
     ".venv/bin/python -m pytest -m slow tests/test_continuum_paper_slow.py":
         ("tests/test_continuum_paper_slow.py::test_switch_efolding_time_of_the_column_within_25_percent",
          "pytest -m slow (needs the lambda = 1 reference's results; skipped without them)"),

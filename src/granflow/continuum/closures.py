@@ -93,6 +93,47 @@ class FlowClosures:
                    source="Coulomb friction (synthetic)")
 
     @classmethod
+    def paper(cls, theta: float, lam: float = 1.0):
+        """The paper's own closures at basal roughness ``lam`` (Weinhart et al. 2012 Table 1:
+        Eq. 50's delta1, delta2, A, beta, gamma; Table 2: alpha, Eq. 54 with d_lambda and
+        hstop(theta; 1) or Eq. 55's constant; Eq. 53's K with d0 = 132, d1 = 21.50), from
+        :data:`granflow.reference.PAPER`: an independent comparator for a library's closures,
+        status ``paper``.  Raises ValueError for a lam the paper's tables do not list."""
+        from ..reference import paper_value
+
+        theta = float(theta)
+        p = {k: paper_value(kind, k, lam) for kind, k in (
+            ("hstop", "delta1"), ("hstop", "delta2"), ("hstop", "A"), ("flow_rule", "beta"),
+            ("flow_rule", "gamma"))}
+        if not all(math.isfinite(v) for v in p.values()):
+            raise ValueError(f"lam = {lam!r} is out of range: the paper's Table 1 lists "
+                             "lambda = 1/2, 2/3, 5/6, 1, 2 with every friction parameter")
+
+        def mu(h, F, p=p):
+            return mu_eq50(np.asarray(h, float), np.asarray(F, float), p["delta1"],
+                           p["delta2"], p["A"], p["beta"], p["gamma"])
+
+        a_const = paper_value("alpha", "alpha_constant", lam)
+        if math.isfinite(a_const):
+            alpha, a_form = _const(a_const), f"Table 2 constant {a_const:g}"
+        else:
+            d_lam = paper_value("alpha", "d_lambda", lam)
+            hst = float(hstop_eq45(theta, *(paper_value("hstop", k, 1.0)
+                                            for k in ("delta1", "delta2", "A"))))
+
+            def alpha(h, d_lam=d_lam, hst=hst):
+                return alpha_eq54(np.asarray(h, float), hst, d_lam)
+            a_form = f"Eq. 54, d_lambda = {d_lam:g}"
+        K = float(stress_ratio_eq53(theta, paper_value("stress_ratio", "d0"),
+                                    paper_value("stress_ratio", "d1")))
+        return cls(theta=theta, mu=mu, alpha=alpha, K=K,
+                   status={k: "paper" for k in ("friction", "alpha", "stress_ratio")},
+                   form={"friction": "Eq. 50, Table 1 lambda = " + f"{lam:g}: " + ", ".join(
+                       f"{k} {v:g}" for k, v in p.items()), "alpha": a_form,
+                       "stress_ratio": "Eq. 53, d0 = 132, d1 = 21.50"},
+                   source=f"Weinhart et al. 2012, Tables 1-2 and Eq. 53 (lambda = {lam:g})")
+
+    @classmethod
     def from_library(cls, lib, theta: float, lam=None, *, contact_law=None,
                      allow_unidentified: bool = False, member: int | None = None):
         """The library's friction (Eq. 50), shape factor (Eq. 54/55) and K (Eq. 53) at theta.

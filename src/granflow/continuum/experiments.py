@@ -45,8 +45,8 @@ The closure library is fitted to steady uniform runs; these runs are *not* in it
   (:func:`steady_diffusivity`) or its transient.
 
 Command line: ``python -m granflow.continuum.experiments [-v] {switch,long-chute,diffusivity,
-segregation-tracers,segregation-run,compare-segregation,compare} ...`` (``-h`` for the
-arguments); the slow tests in ``tests/test_continuum_slow.py`` and
+segregation-tracers,segregation-run,compare-segregation,compare-long-chute,compare} ...``
+(``-h`` for the arguments); the slow tests in ``tests/test_continuum_slow.py`` and
 ``tests/test_continuum_paper_slow.py`` run the comparisons with the issue's tolerances.
 """
 
@@ -453,7 +453,9 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
                        allow_unidentified=True, extrapolate=True, out_nc=None,
                        viscosity=None, model="shallow", n_ensemble: int = 0) -> dict:
     """Shallow-layer solver from the particle run's initial h(x), u_bar(x); positions of peak
-    and front over time, particle vs solver.  ``viscosity``: None (Eq. 34 as the paper
+    and front over time, particle vs solver.  ``lib``: a closure library, or a
+    :class:`FlowClosures` to use as it is (e.g. :meth:`FlowClosures.paper`, the paper's own
+    closures).  ``viscosity``: None (Eq. 34 as the paper
     writes it), ``"gray_edwards"`` (with the depth-averaged viscous stress, nu from the
     closures' steady flow rule at the layer's mean depth,
     :meth:`FlowClosures.gray_edwards_viscosity`) or a number nu.  ``model``: ``"shallow"``
@@ -480,7 +482,8 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
     part = column_fields(xr.open_dataset(columns_nc), rho_bar)
     x = part.x.values
     times = part.t.values - part.t.values[0]
-    c = FlowClosures.from_library(lib, theta, allow_unidentified=allow_unidentified)
+    c = lib if isinstance(lib, FlowClosures) else FlowClosures.from_library(
+        lib, theta, allow_unidentified=allow_unidentified)
     h0 = part.h.values[0]
     u0 = np.nan_to_num(part.u_bar.values[0])
     rng = c.fitted_ranges()
@@ -1125,6 +1128,19 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="comparison JSON")
     p.add_argument("--Ps", type=float, default=None,
                    help="Ps for the model (default: the run's own steady-profile fit)")
+    p = sub.add_parser("compare-long-chute",
+                       help="a long-chute run against one model -> table (and JSON)")
+    p.add_argument("long_chute", help="long-chute folder (columns.nc)")
+    p.add_argument("--closures", required=True,
+                   help="closure library (.nc), or 'paper' for the paper's own Table 1-2 and "
+                        "Eq. 53 closures (FlowClosures.paper)")
+    p.add_argument("--lam", type=float, default=1.0, help="lambda of the paper's closures")
+    p.add_argument("--model", choices=LONG_CHUTE_MODELS, default="shallow")
+    p.add_argument("--viscosity", default=None,
+                   help="shallow model only: 'gray_edwards' or a number nu")
+    p.add_argument("--n-ensemble", type=int, default=0,
+                   help="local-equilibrium models: members of the friction ensemble")
+    p.add_argument("--out", default=None, help="comparison JSON")
     p = sub.add_parser("compare", help="all comparisons -> JSON and figures")
     p.add_argument("--lib", required=True, help="closure library (with the diffusivity)")
     p.add_argument("--campaign", required=True)
@@ -1137,14 +1153,19 @@ def main(argv=None):
     a = ap.parse_args(argv)
     need = {"segregation-run": lambda: [Path(a.run) / "params.yaml", Path(a.base)],
             "compare-segregation": lambda: [Path(a.run) / f for f in (
-                "summary.json", "series.nc", "row.json", "tracers.npz")]}
+                "summary.json", "series.nc", "row.json", "tracers.npz")],
+            "compare-long-chute": lambda: [Path(a.long_chute) / "columns.nc"] + (
+                [] if a.closures == "paper" else [Path(a.closures)])}
     if a.cmd in need:  # before any compute: name what is missing and what makes it
         missing = [os.fspath(f) for f in need[a.cmd]() if not f.is_file()]
         if missing:
             ap.error(f"{a.cmd}: missing {', '.join(missing)} ("
                      + ("the run's params.yaml comes from `granflow campaign run-params`, the "
                         "base from `granflow prepare-base`" if a.cmd == "segregation-run" else
-                        "a finished `segregation-run` folder holds all four") + ")")
+                        "a finished `segregation-run` folder holds all four"
+                        if a.cmd == "compare-segregation" else
+                        "the long chute comes from `long-chute`; --closures names a library "
+                        "or 'paper'") + ")")
     if a.verbose:
         import logging
 
@@ -1193,6 +1214,29 @@ def main(argv=None):
         res = compare_segregation_reference(a.run, Ps_laws=laws, Ps=a.Ps)
         _json_write(a.out, res)
         print(format_segregation_reference(res))
+    elif a.cmd == "compare-long-chute":
+        from ..closures import open_library
+        from .closures import FlowClosures
+
+        cols = xr.open_dataset(Path(a.long_chute) / "columns.nc")
+        base_run = Path(json.loads(cols.attrs["tiles"])[-1]).parent
+        summ = _summary(base_run)
+        theta = summ["params"]["theta"]
+        lib = (FlowClosures.paper(theta, a.lam) if a.closures == "paper"
+               else open_library(a.closures))
+        visc = a.viscosity
+        if visc is not None and visc != "gray_edwards":
+            visc = float(visc)
+        res = compare_long_chute(lib, Path(a.long_chute) / "columns.nc",
+                                 summ["depth_averages"]["rho_bar"], theta, model=a.model,
+                                 viscosity=visc, n_ensemble=a.n_ensemble)
+        if a.out:
+            _json_write(a.out, res)
+        w = res["worst_err_after_quarter"]
+        print("\n".join(_long_chute_lines(
+            f"{a.long_chute}: {a.model} with {a.closures} closures (theta {theta:g}); worst "
+            f"|error| after a quarter of the run: peak {w['peak']:.1%}, front {w['front']:.1%}",
+            res)))
     elif a.cmd == "compare":
         res = compare_all(a.lib, a.campaign, a.switch_runs, a.long_chute, a.out, a.figures,
                           segregation_tracers=a.segregation_tracers)
