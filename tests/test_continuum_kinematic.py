@@ -140,6 +140,19 @@ def test_long_chute_comparison_refuses_bad_model_choices_before_reading_anything
                               viscosity="gray_edwards")
     with pytest.raises(ValueError, match="n_ensemble"):
         ex.compare_long_chute(None, missing, 0.58, 25.0, n_ensemble=10)
+    with pytest.raises(ValueError, match="n_ensemble"):
+        ex.compare_long_chute(None, missing, 0.58, 25.0, model="kinematic_wave", n_ensemble=-1)
+
+def test_compare_long_chute_command_names_bad_values_before_reading(tmp_path, capsys):
+    from granflow.continuum import experiments as ex
+
+    (tmp_path / "columns.nc").write_bytes(b"")  # present, never read
+    for bad, name in ((["--viscosity", "thick"], "--viscosity"),
+                      (["--n-ensemble", "-3"], "--n-ensemble")):
+        with pytest.raises(SystemExit) as exc:
+            ex.main(["compare-long-chute", str(tmp_path), "--closures", "paper", *bad])
+        assert exc.value.code == 2
+        assert name in capsys.readouterr().err
 
 
 def test_ensemble_band_error_is_zero_inside_and_the_nearer_edge_outside():

@@ -475,6 +475,8 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
         raise ValueError(f"model = {model!r} is not one of {LONG_CHUTE_MODELS}")
     if model != "shallow" and viscosity is not None:
         raise ValueError(f"viscosity is a term of the shallow-layer model, not of {model!r}")
+    if not (isinstance(n_ensemble, (int, np.integer)) and n_ensemble >= 0):
+        raise ValueError(f"n_ensemble = {n_ensemble!r} is out of range: allowed integers >= 0")
     if n_ensemble and model == "shallow":
         raise ValueError("n_ensemble is implemented for the local-equilibrium models only "
                          "(the shallow-layer solver takes minutes per member)")
@@ -1166,6 +1168,14 @@ def main(argv=None):
                         if a.cmd == "compare-segregation" else
                         "the long chute comes from `long-chute`; --closures names a library "
                         "or 'paper'") + ")")
+    if a.cmd == "compare-long-chute":  # the choices' values, before reading anything
+        if a.viscosity not in (None, "gray_edwards"):
+            try:
+                float(a.viscosity)
+            except ValueError:
+                ap.error(f"--viscosity {a.viscosity!r}: allowed 'gray_edwards' or a number")
+        if a.n_ensemble < 0:
+            ap.error(f"--n-ensemble {a.n_ensemble}: allowed integers >= 0")
     if a.verbose:
         import logging
 
