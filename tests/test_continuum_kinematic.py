@@ -179,3 +179,14 @@ def test_paper_closures_are_table1_table2_and_eq53():
     assert float(FlowClosures.paper(24.0, 0.5).alpha(np.array([8.0]))[0]) == 1.142
     with pytest.raises(ValueError, match="lam"):
         FlowClosures.paper(26.0, 0.0)
+
+
+def test_bump_amplitude_is_the_smoothed_height_above_the_layer():
+    """A Gaussian bump of height 3 and width 10 cells on h = 6: the 5-cell running mean lowers
+    its top by the factor sqrt(s^2 / (s^2 + (5^2 - 1)/12)) of a Gaussian convolved with a box."""
+    from granflow.continuum.experiments import bump_amplitude
+
+    x = np.arange(200.0)
+    h = 6.0 + 3.0 * np.exp(-0.5 * ((x - 100.0) / 10.0) ** 2)
+    assert bump_amplitude(h) == pytest.approx(3.0 * math.sqrt(100.0 / 102.0), rel=2e-3)
+    assert abs(bump_amplitude(np.full(50, 6.0))) < 1e-14

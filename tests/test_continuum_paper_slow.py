@@ -252,10 +252,11 @@ def test_kinematic_wave_with_the_paper_closures_within_15_percent(paper_long_chu
     out = tmp_path / "kw.json"
     cmd = [sys.executable, "-m", "granflow.continuum.experiments", "compare-long-chute",
            str(paper_long_chute.relative_to(REPO)), "--closures", "paper", "--model",
-           "kinematic_wave", "--out", str(out)]
+           "kinematic_wave", "--out", str(out), "--figure", str(tmp_path / "kw.png")]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     res = json.loads(out.read_text())
+    assert (tmp_path / "kw.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert res["model"] == "kinematic_wave"
     assert res["closure_status"] == {"friction": "paper", "alpha": "paper",
                                      "stress_ratio": "paper"}

@@ -427,6 +427,13 @@ def _smooth_periodic(h, n=5):
     return np.convolve(pad, k, mode="same")[n:-n]
 
 
+def bump_amplitude(h) -> float:
+    """Height of a bump above its layer: the smoothed maximum of h (as
+    :func:`feature_positions` finds the peak) minus the median of h."""
+    h = np.asarray(h, float)
+    return float(np.max(_smooth_periodic(h)) - np.median(h))
+
+
 def feature_positions(x, h, x_prev=None, L=None):
     """Peak position (max of the smoothed h) and front position (downstream crossing of the
     level halfway between the smoothed minimum and maximum), unwrapped against ``x_prev``."""
@@ -513,7 +520,9 @@ def compare_long_chute(lib, columns_nc, rho_bar: float, theta: float, *,
         fs = feature_positions(x, sol.h.values[k], prev_s, L)
         prev_p, prev_s = fp, fs
         rows.append(dict(t=float(t), peak_particles=fp[0], front_particles=fp[1],
-                         peak_solver=fs[0], front_solver=fs[1]))
+                         peak_solver=fs[0], front_solver=fs[1],
+                         amplitude_particles=bump_amplitude(part.h.values[k]),
+                         amplitude_solver=bump_amplitude(sol.h.values[k])))
     r0 = rows[0]
     for r in rows:
         for f in ("peak", "front"):
@@ -1088,6 +1097,45 @@ def plot_all(res: dict, figures) -> list:
     return out
 
 
+def plot_long_chute(lc: dict, path, label: str) -> Path:
+    """PNG of one long-chute comparison (:func:`compare_long_chute`): distances travelled by
+    peak and front (particles: points; the model, ``label``: line; the closure ensemble's
+    16-84 % band where it was computed) and the h(x) profiles at five times."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = lc["rows"]
+    t = [r["t"] for r in rows]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9.5, 3.2))
+    for f, c in (("peak", "C1"), ("front", "C2")):
+        ax.plot(t, [r[f"{f}_travel_particles"] for r in rows], "o", ms=3, color=c,
+                label=f"{f}: particles")
+        ax.plot(t, [r[f"{f}_travel_solver"] for r in rows], "-", color=c, label=f"{f}: {label}")
+        if f"{f}_travel_solver_lo" in rows[0]:
+            ax.fill_between(t, [r[f"{f}_travel_solver_lo"] for r in rows],
+                            [r[f"{f}_travel_solver_hi"] for r in rows], color=c, alpha=0.2,
+                            lw=0, label=f"{f}: closure ensemble 16-84 %")
+    ax.set_xlabel("t")
+    ax.set_ylabel("distance travelled (d)")
+    ax.legend(fontsize=6)
+    pr = lc["profiles"]
+    for k, tk in enumerate(pr["t"]):
+        col = plt.cm.viridis(k / max(len(pr["t"]) - 1, 1))
+        ax2.plot(pr["x"], pr["h_particles"][k], ".", ms=2, color=col)
+        ax2.plot(pr["x"], pr["h_solver"][k], "-", lw=1, color=col, label=f"t = {tk:g}")
+    ax2.set_xlabel("x")
+    ax2.set_ylabel(f"h (points: particles, lines: {label})")
+    ax2.legend(fontsize=6)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 # ----------------------------------------------------------------------------- command line
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m granflow.continuum.experiments",
@@ -1143,6 +1191,7 @@ def main(argv=None):
     p.add_argument("--n-ensemble", type=int, default=0,
                    help="local-equilibrium models: members of the friction ensemble")
     p.add_argument("--out", default=None, help="comparison JSON")
+    p.add_argument("--figure", default=None, help="PNG of the comparison (plot_long_chute)")
     p = sub.add_parser("compare", help="all comparisons -> JSON and figures")
     p.add_argument("--lib", required=True, help="closure library (with the diffusivity)")
     p.add_argument("--campaign", required=True)
@@ -1242,6 +1291,8 @@ def main(argv=None):
                                  viscosity=visc, n_ensemble=a.n_ensemble)
         if a.out:
             _json_write(a.out, res)
+        if a.figure:
+            plot_long_chute(res, a.figure, f"{a.model.replace('_', ' ')} ({a.closures} closures)")
         w = res["worst_err_after_quarter"]
         print("\n".join(_long_chute_lines(
             f"{a.long_chute}: {a.model} with {a.closures} closures (theta {theta:g}); worst "
@@ -1289,7 +1340,7 @@ def format_segregation_reference(r: dict) -> str:
 def _long_chute_lines(title: str, lc: dict) -> list[str]:
     """A long-chute comparison as table lines (distances travelled, particles vs solver)."""
     lines = ["", title, f"{'t':>6} {'peak_p':>8} {'peak_s':>8} {'err':>7} {'front_p':>8} "
-                        f"{'front_s':>8} {'err':>7}"]
+                        f"{'front_s':>8} {'err':>7} {'amp_p':>6} {'amp_s':>6}"]
     banded = "peak_travel_solver_lo" in lc["rows"][0] if lc["rows"] else False
     if banded:
         lines[-1] += f" {'peak_s 16-84 %':>15} {'front_s 16-84 %':>15}"
@@ -1297,7 +1348,8 @@ def _long_chute_lines(title: str, lc: dict) -> list[str]:
         line = (f"{r['t']:6.1f} {r['peak_travel_particles']:8.2f} "
                 f"{r['peak_travel_solver']:8.2f} {r['peak_err']:+7.1%} "
                 f"{r['front_travel_particles']:8.2f} {r['front_travel_solver']:8.2f} "
-                f"{r['front_err']:+7.1%}")
+                f"{r['front_err']:+7.1%} {r.get('amplitude_particles', math.nan):6.2f} "
+                f"{r.get('amplitude_solver', math.nan):6.2f}")
         if banded:
             line += "".join(f" {r[f + '_travel_solver_lo']:7.2f}-{r[f + '_travel_solver_hi']:<7.2f}"
                             for f in ("peak", "front"))
