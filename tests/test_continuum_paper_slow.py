@@ -41,6 +41,18 @@ SWITCHES = [(26.0, 10, 27.5, 400.0), (28.0, 10, 26.5, 400.0), (24.0, 20, 25.5, 4
 LONG_TILES = [(26.0, 20)] * 2 + [(26.0, 10)] * 8
 
 
+def _long_chute():
+    """The long chute of LONG_TILES on the reference's base (run here when missing)."""
+    lc = OUT / "long_chute"
+    if not (lc / "columns.nc").exists():
+        first = ex._summary(RUNS / "theta~26" / "H~10")["params"]
+        ex.run_long_chute([RUNS / f"theta~{t:g}" / f"H~{H}" / "final_state.npz"
+                           for t, H in LONG_TILES],
+                          CAMPAIGN / "bases" / "lambda~1" / "box~10x5" / "base.npy",
+                          first["Lx"], first["Ly"], first, lc, t_end=24.0)
+    return lc
+
+
 def _name(th1, H, th2):
     return f"H{H}_{th1:g}to{th2:g}"
 
@@ -68,13 +80,7 @@ def comparison():
         if not (child / "summary.json").exists():
             ex.run_switch(parent, th2, child, t_end=t_end)
         out[_name(th1, H, th2)] = ex.compare_switch(lib, parent, child)
-    lc = OUT / "long_chute"
-    if not (lc / "columns.nc").exists():
-        first = ex._summary(RUNS / "theta~26" / "H~10")["params"]
-        ex.run_long_chute([RUNS / f"theta~{t:g}" / f"H~{H}" / "final_state.npz"
-                           for t, H in LONG_TILES],
-                          CAMPAIGN / "bases" / "lambda~1" / "box~10x5" / "base.npy",
-                          first["Lx"], first["Ly"], first, lc, t_end=24.0)
+    lc = _long_chute()
     rho = ex._summary(RUNS / "theta~26" / "H~10")["depth_averages"]["rho_bar"]
     for key, visc in (("long_chute", None), ("long_chute_viscous", "gray_edwards")):
         out[key] = ex.compare_long_chute(lib, lc / "columns.nc", rho, 26.0, viscosity=visc)
@@ -226,14 +232,7 @@ def paper_long_chute():
         subprocess.run([str(snakemake), *[str(p.relative_to(REPO)) for p in need],
                         "--configfile", "config/reference-lambda1.yaml", "--cores", "2"],
                        cwd=REPO, check=True, capture_output=True, timeout=7200)
-    lc = OUT / "long_chute"
-    if not (lc / "columns.nc").exists():
-        first = ex._summary(RUNS / "theta~26" / "H~10")["params"]
-        ex.run_long_chute([RUNS / f"theta~{t:g}" / f"H~{H}" / "final_state.npz"
-                           for t, H in LONG_TILES],
-                          CAMPAIGN / "bases" / "lambda~1" / "box~10x5" / "base.npy",
-                          first["Lx"], first["Ly"], first, lc, t_end=24.0)
-    return lc
+    return _long_chute()
 
 
 @pytest.mark.parametrize("feature", ["peak", "front"])

@@ -60,19 +60,15 @@ import math
 import numpy as np
 import xarray as xr
 
-from .. import units as U
 from ..engine.species import check_range
 from .closures import FlowClosures
 from .output import finish
+from .shallow import _cell_spacing, _layer_dataset, _minmod, _output_times
 
 EQ_KINEMATIC = ("Weinhart et al. 2012 Eq. (34a) with the local equilibrium mu(h, F) = tan(theta) "
                 "(kinematic wave: inertia and pressure gradient of Eq. 34b dropped)")
 EQ_DIFFUSIVE = ("Weinhart et al. 2012 Eq. (34a) with the local equilibrium mu(h, F) = tan(theta) "
                 "- K dh/dx (diffusive wave: inertia of Eq. 34b dropped)")
-
-
-def _minmod(a, b):
-    return np.where(a * b > 0, np.sign(a) * np.minimum(np.abs(a), np.abs(b)), 0.0)
 
 
 def equilibrium_froude(closures: FlowClosures, h, mu_target, *, F_max: float = 50.0,
@@ -174,26 +170,15 @@ def local_equilibrium_layer(closures: FlowClosures, x, h0, t_end: float, *,
     fitted ranges, with CF attributes and the closures' status.
     """
     x = np.asarray(x, float)
-    n = x.size
-    if n < 4 or x.ndim != 1:
-        raise ValueError(f"x must hold at least 4 cell centres, got shape {x.shape}")
-    dxs = np.diff(x)
-    dx = float(np.mean(dxs))
-    if not (dx > 0 and np.allclose(dxs, dx, rtol=1e-9, atol=0)):
-        raise ValueError("x must be uniformly spaced and increasing")
+    dx = _cell_spacing(x)
     h = np.broadcast_to(np.asarray(h0, float), x.shape).copy()
     if not (np.all(np.isfinite(h)) and np.all(h > 0)):
         raise ValueError("h0 must be finite and > 0 everywhere (a wet periodic layer)")
-    if not (math.isfinite(t_end) and t_end > 0):
-        raise ValueError(f"t_end = {t_end!r} is out of range: allowed (0, inf)")
+    times = _output_times(times, t_end, n_out)
     if not closures.tan_theta > 0:
         raise ValueError(f"theta = {closures.theta!r} is out of range: the local-equilibrium "
                          "layer flows downslope, allowed (0, 90) degrees")
     check_range("F_max", F_max, 0.0, math.inf, lo_open=True)
-    times = np.linspace(0.0, t_end, int(n_out)) if times is None else np.asarray(times, float)
-    if times.ndim != 1 or times.size < 1 or np.any(np.diff(times) <= 0) or times[0] < 0 \
-            or times[-1] > t_end * (1 + 1e-12):
-        raise ValueError("times must increase within [0, t_end]")
     solver = LocalEquilibriumSolver(closures, dx, diffusive=diffusive, cfl=cfl, F_max=F_max)
     gc = closures.g_cos
 
@@ -236,17 +221,10 @@ def local_equilibrium_layer(closures: FlowClosures, x, h0, t_end: float, *,
             record()
             k += 1
     H = np.array(out_h)
-    ds = xr.Dataset(
-        {"h": (("t", "x"), H, U.cf(U.LENGTH, "flow height h (cell average)")),
-         "u_bar": (("t", "x"), np.array(out_u), U.cf(
-             U.VELOCITY, "depth-averaged velocity in local equilibrium u_e(h, dh/dx)")),
-         "mass": ("t", H.sum(axis=1) * dx, U.cf(
-             "d2", "integral of h dx over the domain (volume per unit width)")),
-         "fraction_outside_fitted_range": ("t", np.array(out_frac), U.cf(
-             U.DIMENSIONLESS, "fraction of cells with (h, F) outside the closure's fitted "
-                              "ranges (NaN for synthetic closures)"))},
-        coords={"t": ("t", times, U.cf(U.TIME, "time")),
-                "x": ("x", x, U.cf(U.LENGTH, "downslope position (cell centre)", axis="X"))})
+    ds = _layer_dataset(x, times, H, out_u, out_frac, dx,
+                        "depth-averaged velocity in local equilibrium u_e(h, dh/dx)",
+                        "fraction of cells with (h, F) outside the closure's fitted "
+                        "ranges (NaN for synthetic closures)")
     ds.attrs.update(closures.attrs(), equation=EQ_DIFFUSIVE if diffusive else EQ_KINEMATIC,
                     bc="periodic", cfl=cfl, dx=dx, F_max=float(F_max), n_steps=steps,
                     n_faces_arrested_max=solver.n_arrested,

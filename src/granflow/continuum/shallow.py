@@ -102,6 +102,42 @@ def _ghost(a, bc, n=2):
     return np.concatenate([np.full(n, a[0]), a, np.full(n, a[-1])])
 
 
+def _cell_spacing(x) -> float:
+    """Spacing of the cell centres ``x`` (1-D, at least 4, uniform and increasing) or
+    ValueError naming what is wrong."""
+    if x.size < 4 or x.ndim != 1:
+        raise ValueError(f"x must hold at least 4 cell centres, got shape {x.shape}")
+    dxs = np.diff(x)
+    dx = float(np.mean(dxs))
+    if not (dx > 0 and np.allclose(dxs, dx, rtol=1e-9, atol=0)):
+        raise ValueError("x must be uniformly spaced and increasing")
+    return dx
+
+
+def _output_times(times, t_end: float, n_out: int):
+    """The output times: ``n_out`` equally spaced in [0, t_end] or ``times`` (checked)."""
+    if not (math.isfinite(t_end) and t_end > 0):
+        raise ValueError(f"t_end = {t_end!r} is out of range: allowed (0, inf)")
+    times = np.linspace(0.0, t_end, int(n_out)) if times is None else np.asarray(times, float)
+    if times.ndim != 1 or times.size < 1 or np.any(np.diff(times) <= 0) or times[0] < 0 \
+            or times[-1] > t_end * (1 + 1e-12):
+        raise ValueError("times must increase within [0, t_end]")
+    return times
+
+
+def _layer_dataset(x, times, H, u, frac, dx, u_long_name, frac_long_name) -> xr.Dataset:
+    """h(t, x), u_bar(t, x), mass(t) and the fitted-range fraction(t) with CF attributes."""
+    return xr.Dataset(
+        {"h": (("t", "x"), H, U.cf(U.LENGTH, "flow height h (cell average)")),
+         "u_bar": (("t", "x"), np.array(u), U.cf(U.VELOCITY, u_long_name)),
+         "mass": ("t", H.sum(axis=1) * dx, U.cf(
+             "d2", "integral of h dx over the domain (volume per unit width)")),
+         "fraction_outside_fitted_range": ("t", np.array(frac), U.cf(
+             U.DIMENSIONLESS, frac_long_name))},
+        coords={"t": ("t", times, U.cf(U.TIME, "time")),
+                "x": ("x", x, U.cf(U.LENGTH, "downslope position (cell centre)", axis="X"))})
+
+
 class ShallowLayerSolver:
     """Explicit finite-volume solver of Eq. (34) (module docstring); use :func:`shallow_layer`."""
 
@@ -246,24 +282,14 @@ def shallow_layer(closures: FlowClosures, x, h0, u0, t_end: float, *, bc: str = 
     """
     x = np.asarray(x, float)
     n = x.size
-    if n < 4 or x.ndim != 1:
-        raise ValueError(f"x must hold at least 4 cell centres, got shape {x.shape}")
-    dxs = np.diff(x)
-    dx = float(np.mean(dxs))
-    if not (dx > 0 and np.allclose(dxs, dx, rtol=1e-9, atol=0)):
-        raise ValueError("x must be uniformly spaced and increasing")
+    dx = _cell_spacing(x)
     h = np.broadcast_to(np.asarray(h0, float), x.shape).copy()
     u = np.broadcast_to(np.asarray(u0, float), x.shape).copy()
     if not (np.all(np.isfinite(h)) and np.all(h >= 0)):
         raise ValueError("h0 must be finite and >= 0 everywhere")
     if not np.all(np.isfinite(u)):
         raise ValueError("u0 must be finite")
-    if not (math.isfinite(t_end) and t_end > 0):
-        raise ValueError(f"t_end = {t_end!r} is out of range: allowed (0, inf)")
-    times = np.linspace(0.0, t_end, int(n_out)) if times is None else np.asarray(times, float)
-    if times.ndim != 1 or times.size < 1 or np.any(np.diff(times) <= 0) or times[0] < 0 \
-            or times[-1] > t_end * (1 + 1e-12):
-        raise ValueError("times must increase within [0, t_end]")
+    times = _output_times(times, t_end, n_out)
     wet = h > h_dry
     gc = closures.g_cos
     if check and wet.any():
@@ -307,17 +333,10 @@ def shallow_layer(closures: FlowClosures, x, h0, u0, t_end: float, *, bc: str = 
             record()
             k += 1
     H = np.array(out_h)
-    ds = xr.Dataset(
-        {"h": (("t", "x"), H, U.cf(U.LENGTH, "flow height h (cell average)")),
-         "u_bar": (("t", "x"), np.array(out_u), U.cf(
-             U.VELOCITY, "depth-averaged velocity u_bar = (h u)/h (NaN in dry cells)")),
-         "mass": ("t", H.sum(axis=1) * dx, U.cf(
-             "d2", "integral of h dx over the domain (volume per unit width)")),
-         "fraction_outside_fitted_range": ("t", np.array(out_frac), U.cf(
-             U.DIMENSIONLESS, "fraction of wet cells with (h, F) outside the closure's "
-                              "fitted ranges (NaN for synthetic closures)"))},
-        coords={"t": ("t", times, U.cf(U.TIME, "time")),
-                "x": ("x", x, U.cf(U.LENGTH, "downslope position (cell centre)", axis="X"))})
+    ds = _layer_dataset(x, times, H, out_u, out_frac, dx,
+                        "depth-averaged velocity u_bar = (h u)/h (NaN in dry cells)",
+                        "fraction of wet cells with (h, F) outside the closure's "
+                        "fitted ranges (NaN for synthetic closures)")
     ds.attrs.update(closures.attrs(), equation=EQ if solver.nu == 0 else EQ + VISCOUS,
                     bc=bc, cfl=cfl, dx=dx, h_dry=h_dry, viscosity=solver.nu,
                     n_steps=steps, n_cells_brought_to_rest=solver.n_rest,
