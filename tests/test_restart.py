@@ -329,3 +329,24 @@ def test_outputs_name_the_base_a_run_fell_onto_and_a_restart_inherits_it(tmp_pat
     simulate(dict(BASE, theta=26.0, t_end=0.5), tmp_path / "own_base")
     own = json.loads((tmp_path / "own_base" / "summary.json").read_text())
     assert own["provenance"]["base_sha256"] is None
+
+
+def test_a_resumed_run_takes_the_new_t_end(tmp_path):
+    """t_end is resume-free (RESUME_FREE_PARAMETERS): a run killed part-way and resumed with a
+    longer t_end runs to the new one (its steady-state monitor, restored from the checkpoint,
+    no longer stops it at the old cap), with the numbers of a run given the longer t_end from
+    the start."""
+    params = dict(BASE, theta=26.0, t_end=1.0, checkpoint_every_s=0.0, early_stop=True)
+    whole = tmp_path / "whole"
+    simulate(dict(params, t_end=2.0), whole, extra_observers=(_Interrupt(math.inf),))
+    killed = tmp_path / "killed"
+    with pytest.raises(KeyboardInterrupt):
+        simulate(params, killed, extra_observers=(_Interrupt(0.5),))
+    res = simulate(dict(params, t_end=2.0), killed, extra_observers=(_Interrupt(math.inf),))
+    assert res["run"].resumed_from >= 0.4
+    sa = json.loads((whole / "summary.json").read_text())
+    sb = json.loads((killed / "summary.json").read_text())
+    assert sb["t_final"] == sa["t_final"] >= 2.0
+    a, b = np.load(whole / "final_state.npz"), np.load(killed / "final_state.npz")
+    for key in ("pos", "vel", "omega"):
+        assert np.array_equal(a[key], b[key]), key

@@ -778,6 +778,10 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
                                  f"{exc})", "checkpoint", remove=True) from None
         if p["max_overlap"] is not None:  # after the resume: the run's own system
             run.system.max_overlap_fraction = float(p["max_overlap"])
+        # the resume-free parameters are this invocation's, not the checkpoint's: a resumed
+        # monitor would otherwise keep the cap (and stop rule) of the run that wrote it
+        monitor_obs.monitor.t_cap = float(p["t_end"])
+        monitor_obs.monitor.stop_when_flowing = bool(p["stop_when_flowing"])
         try:
             if spare is None:
                 run.run()
