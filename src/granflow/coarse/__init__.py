@@ -6,6 +6,9 @@
   Dataset with dim ``z``.
 * :mod:`granflow.coarse.derived`: flow height (Eq. 42), depth averages (Eq. 33), bulk density
   (Eq. 51), local friction / shear rate / inertial number profiles.
+* :mod:`granflow.coarse.diffusion`: tagged-particle self-diffusion in z and its closure;
+  :mod:`granflow.coarse.segregation_flux`: the small particles' volume flux through each level
+  in a segregation transient and T-eq. (27)'s rates regressed on it.
 """
 
 from .derived import (

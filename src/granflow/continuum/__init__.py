@@ -17,7 +17,9 @@
   (diffusive wave) or = tan(theta) (kinematic wave), only the mass balance left:
   :func:`local_equilibrium_layer` (no parameter beyond the library's mu(h, F) and K).
 * :mod:`.segregation` -- segregation and diffusive remixing in depth, Thornton et al. T-eq. (27)
-  with the symmetric flux or the asymmetric flux of seed 001: :func:`segregation_layer`.
+  with the symmetric flux or the asymmetric flux of seed 001: :func:`segregation_layer`;
+  :func:`fit_segregation_transient` fits its two rates S and D_r to a measured transient
+  phi(z, t) (a particle run's, from :mod:`granflow.coarse.segregation_flux`).
 * :mod:`.closures` -- :class:`FlowClosures`: a library's mu(h, F), alpha(h), K at one
   inclination as fast functions (status-checked; ensemble members for uncertainty), or
   synthetic closures (Coulomb friction) for tests.
@@ -81,11 +83,11 @@ from .closures import FlowClosures
 from .column import column_layer
 from .exact import dam_break_front, mangeney_dam_break
 from .kinematic import equilibrium_froude, local_equilibrium_layer
-from .segregation import segregation_layer
+from .segregation import fit_segregation_transient, segregation_layer
 from .shallow import shallow_layer
 from .uniform import fit_relaxation, linear_relaxation_time, switch_prediction, uniform_layer
 
 __all__ = ["FlowClosures", "uniform_layer", "column_layer", "switch_prediction", "fit_relaxation",
            "linear_relaxation_time", "shallow_layer", "local_equilibrium_layer",
-           "equilibrium_froude", "segregation_layer",
+           "equilibrium_froude", "fit_segregation_transient", "segregation_layer",
            "mangeney_dam_break", "dam_break_front"]

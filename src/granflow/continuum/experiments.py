@@ -707,7 +707,8 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     then D measured over the run's transient (t0 to t0 + 2 half-times,
     :func:`transient_diffusivity`) is recorded beside the closure's (``D_transient``,
     ``D_closure_over_transient``) and the model is run with it too (``<flux>_D_transient``):
-    it separates the diffusivity closure's error from the rest of the model's.
+    it separates the diffusivity closure's error from the rest of the model's; and T-eq. (27)'s
+    rates are measured on the transient itself (``transient_rates``: :func:`transient_rates`).
 
     Non-ok closures: with ``allow_unidentified=True`` (the default here, as the comparison is
     meant to show how such closures predict) an ``unidentified`` Ps or diffusivity is used and
@@ -722,8 +723,11 @@ def compare_segregation(lib, run_dir, seg_fits, *, allow_unidentified=True,
     D, D_std = float(Dds["value"]), float(Dds["std"])
     Ps, Ps_status = segregation_Ps_at(lib, sigma, allow_unidentified=allow_unidentified)
     fit = next(f for f in seg_fits if abs(f["fit"]["coords"].get("sigma", -1) - sigma) < 1e-9)
-    return segregation_against_model(m, fit, Ps=Ps, Ps_status=Ps_status, D=D, D_std=D_std,
-                                     d_mean=d_mean, d_length=d_length, tracer_dir=tracer_dir)
+    out = segregation_against_model(m, fit, Ps=Ps, Ps_status=Ps_status, D=D, D_std=D_std,
+                                    d_mean=d_mean, d_length=d_length, tracer_dir=tracer_dir)
+    if tracer_dir is not None:
+        out["transient_rates"] = transient_rates(m, tracer_dir, Ps=Ps, D=out["D_transient"])
+    return out
 
 
 def segregation_against_model(m: dict, fit: dict, *, Ps: float, Ps_status: str, D: float,
@@ -903,7 +907,188 @@ def compare_segregation_reference(run_dir, *, Ps_laws=None, Ps=None) -> dict:
     for name, ps in (Ps_laws or {}).items():
         res = segregation_against_model(m, fit, Ps=float(ps), Ps_status="law", D=D, D_std=D_std)
         out[f"law:{name}"] = {"Ps": float(ps), **res["symmetric"]}
+    # S and D_r measured on the transient itself: does T-eq. (27) with constant rates describe
+    # it, and with which Ps, against the steady profile's?
+    rates = transient_rates(m, run_dir, Ps=Ps, D=out["D_transient"])
+    f = rates["fit"]
+    res = segregation_against_model(m, fit, Ps=f["Ps"], Ps_status="transient fit", D=f["D_r"],
+                                    D_std=f["D_r_stderr"])
+    rates["model"] = {k: res["symmetric"][k] for k in ("t_half", "err_t_half", "s_steady",
+                                                        "phi_rms_vs_particles")}
+    rates["measured_profiles"] = measured_profile_prediction(m, rates)
+    out["transient_rates"] = rates
     return out
+
+
+def transient_rates(m: dict, tracer_dir, *, Ps: float, D: float, every: float = 2.0,
+                    average: float = 1.0, width: float = 0.5, margin: float = 1.0,
+                    t_to=None) -> dict:
+    """T-eq. (27)'s S and D_r measured on a run's own segregation transient (its tracers), not
+    from its steady profile and self-diffusivity (``Ps``, ``D``: those, for the comparison).
+
+    phi(z, t) every ``every`` time units from the start of shear t0 to ``t_to`` (default two
+    particle half-times after t0; the end of the tracers at most), each the coarse-grained
+    small-particle share (:func:`granflow.coarse.segregation_flux.concentration_fields`, Gaussian
+    ``width``) averaged over +-``average``.  Then
+
+    * ``fit``: the model fitted to it over the levels more than ``margin`` from base and surface
+      (:func:`granflow.continuum.segregation.fit_segregation_transient`), and ``fit_first`` /
+      ``fit_second`` the same over the two halves of the window split at the particle
+      half-time: constant rates should give the same S and D_r in both;
+    * ``flux_regression``: the flux J = -dC/dt regressed on T-eq. (27)'s form sample by sample
+      (:func:`granflow.coarse.segregation_flux.segregation_flux_from_tracers`; its D_r is
+      attenuated by the noise of dphi/dz);
+    * ``levels``: the mean flux J / c at levels 2 d apart over the window's four quarters
+      (:func:`granflow.coarse.segregation_flux.level_fluxes`) beside what T-eq. (27) gives with
+      the window-mean phi and dphi/dz there, with the steady (Ps, D) and with the fitted rates;
+    * ``D_profile``: the self-diffusivity of displacements starting in 2-d bands over the window
+      (:func:`granflow.coarse.diffusion.self_diffusivity_profile`);
+    * ``steady_model_from_measured_start``: T-eq. (27) with the steady (Ps, D) started from the
+      particles' own profile at t0 (not from a mixed start aligned on s0): its half-time from
+      there to half its own steady indicator."""
+    from ..coarse.diffusion import self_diffusivity_profile
+    from ..coarse.segregation_flux import (
+        concentration_fields,
+        level_fluxes,
+        segregation_flux_from_tracers,
+    )
+    from .segregation import fit_segregation_transient
+
+    s = _summary(m["run"])
+    da, pr = s["depth_averages"], s["params"]
+    base, surface = float(da["base"]), float(da["surface"])
+    h = surface - base
+    area = float(pr["Lx"]) * float(pr["Ly"])
+    with np.load(Path(tracer_dir) / "tracers.npz") as f:
+        t, z, d = f["time"], f["z"] - base, f["diameter"]
+    th = m["t_half"] if math.isfinite(m["t_half"]) and m["t_half"] > 0 else 100.0
+    t0 = m["t0"]
+    t1 = min(float(t[-1]) - average, t0 + 2.0 * th if t_to is None else float(t_to))
+    times = np.arange(t0, t1 + 1e-9, every)
+    levels = np.arange(0.25, h - 0.2, 0.25)
+    prof = []
+    for tt in times:
+        w = np.abs(t - tt) <= average + 1e-9
+        _, cs, ca = concentration_fields(z[w], d, levels, area=area, width=width)
+        prof.append(cs.mean(axis=0) / ca.mean(axis=0))
+    prof = np.asarray(prof)
+    kw = dict(h=h, phi0=m["phi0"], z_range=(margin, h - margin))
+    fit = fit_segregation_transient(times, levels, prof, **kw)
+    half = times <= t0 + th + 1e-9
+    fits = {"fit_first": fit_segregation_transient(times[half], levels, prof[half], **kw),
+            "fit_second": fit_segregation_transient(times[~half], levels, prof[~half], **kw)
+            if (~half).sum() >= 3 else None}
+    reg = segregation_flux_from_tracers(t, z, d, area=area, z_from=margin, z_to=h - margin,
+                                        t_from=t0, t_to=t1, width=width)
+    quarters = [(t0 + i * (t1 - t0) / 4, t0 + (i + 1) * (t1 - t0) / 4) for i in range(4)]
+    rows = level_fluxes(t, z, d, area=area, levels=np.arange(4.0, h - 3.0, 2.0),
+                        windows=quarters, width=width)
+    S_model = Ps * D / h
+    for r in rows:
+        q, g = r["phi"] * (1.0 - r["phi"]), r["dphi_dz"]
+        r["J_over_c_steady_model"] = -(S_model * q + D * g)
+        r["J_over_c_fitted_model"] = -(fit["S"] * q + fit["D_r"] * g)
+    # the steady (Ps, D) model started from the particles' own profile at t0 instead of from
+    # a mixed start aligned on s0: does the comparison protocol make the gap?
+    from .segregation import segregation_layer
+
+    n = 200
+    start = np.interp((np.arange(n) + 0.5) / n * h, levels, prof[0])
+    start = np.clip(start * (m["phi0"] / start.mean()), 1e-9, 1.0 - 1e-9)
+    t_model = 4.0 * max(float(m["t"][-1]), 1.0)
+    res = segregation_layer(Ps=Ps, D=D, h=h, phi0=m["phi0"], t_end=t_model, n=n, n_out=801,
+                            phi_initial=start)
+    th_start = float(res.t_half)
+    from_start = {"t_half": th_start, "err_t_half": th_start / m["t_half"] - 1.0
+                  if m["t_half"] > 0 else math.nan, "s_start": float(res.indicator[0]),
+                  "s_steady": float(res.indicator_steady)}
+    edges = np.arange(0.0, h + 1e-9, 2.0)
+    return {"fit": fit, **fits, "flux_regression": reg, "levels": rows,
+            "steady_model_from_measured_start": from_start,
+            "D_profile": self_diffusivity_profile(t, z, t0, edges), "h": h, "every": every,
+            "average": average, "width": width, "margin": margin, "Ps_steady": Ps,
+            "D_self": D, "S_steady_model": S_model,
+            "Ps_transient_over_steady": fit["Ps"] / Ps, "D_r_over_D_self": fit["D_r"] / D,
+            "S_over_model_S": fit["S"] / S_model}
+
+
+def local_segregation_velocity(rates: dict) -> list[dict]:
+    """S(z) at each level of :func:`transient_rates`' ``levels`` table: from the measured mean
+    flux and the self-diffusivity of the level's 2-d band (``D_profile``), S = -(J / c + D
+    dphi/dz) / (phi (1 - phi)) -- T-eq. (27)'s flux solved for a local S, one value per
+    (window, level); and their mean over the windows per level with the windows' scatter
+    (stderr of the mean).  Levels where phi (1 - phi) < 0.05 (nearly pure) are left out."""
+    bands = rates["D_profile"]
+
+    def D_at(z):
+        for b in bands:
+            if b["z_from"] <= z < b["z_to"]:
+                return b["D"]
+        return bands[-1]["D"]
+
+    per = {}
+    for r in rates["levels"]:
+        q = r["phi"] * (1.0 - r["phi"])
+        if q < 0.05:
+            continue
+        per.setdefault(r["z"], []).append(-(r["J_over_c"] + D_at(r["z"]) * r["dphi_dz"]) / q)
+    out = []
+    for z, v in sorted(per.items()):
+        v = np.asarray(v)
+        out.append({"z": float(z), "S": float(v.mean()), "n_windows": int(v.size),
+                    "S_stderr": float(v.std(ddof=1) / math.sqrt(v.size)) if v.size > 1
+                    else math.nan, "D_self": float(D_at(z))})
+    return out
+
+
+def measured_profile_prediction(m: dict, rates: dict, *, t_end=None) -> dict:
+    """T-eq. (27) with depth-dependent rates taken from the transient's local measurements
+    (:func:`local_segregation_velocity`'s S(z), the banded self-diffusivity D(z); both
+    interpolated in z, held constant beyond the outermost levels), from the particle run's
+    start of shear as :func:`segregation_against_model` aligns it: its half-time against the
+    particles', and its steady state (exact, :func:`granflow.continuum.segregation.
+    steady_profile_shaped`) as the Ps of T-eq. (28) with the same indicator -- what the
+    transient's rates say the steady profile should be, against the steady Ps the comparison
+    uses (``rates["Ps_steady"]``)."""
+    from scipy.optimize import brentq
+
+    from .segregation import indicator, segregation_layer, steady_profile
+
+    h = rates["h"]
+    S_rows = local_segregation_velocity(rates)
+    zS = np.array([r["z"] for r in S_rows]) / h
+    S_v = np.array([r["S"] for r in S_rows])
+    if S_v.size < 2 or not np.all(S_v > 0):
+        raise ValueError(f"local segregation velocities not all positive: {S_v.tolist()}")
+    zD = np.array([0.5 * (b["z_from"] + b["z_to"]) for b in rates["D_profile"]]) / h
+    D_v = np.array([b["D"] for b in rates["D_profile"]])
+    D_ref = float(np.mean(D_v))
+    S_ref = float(np.mean(S_v))
+    S_shape = lambda zeta: np.interp(zeta, zS, S_v) / S_ref  # noqa: E731
+    D_shape = lambda zeta: np.interp(zeta, zD, D_v) / D_ref  # noqa: E731
+    Ps_ref = S_ref * h / D_ref
+    phi0 = m["phi0"]
+    t_model = 2.0 * max(m["t"][-1], 1.0) if t_end is None else float(t_end)
+    res = segregation_layer(Ps=Ps_ref, D=D_ref, h=h, phi0=phi0, t_end=t_model, n=200, n_out=801,
+                            S_shape=S_shape, D_shape=D_shape)
+    th, t_shift = aligned_half_time(res.t.values, res.indicator.values,
+                                    float(res.indicator_steady), float(m["s0"]))
+    s_inf = float(res.indicator_steady)
+    zeta = res.zeta.values
+
+    def gap(log_ps):
+        return float(indicator(steady_profile(math.exp(log_ps), phi0, zeta.size), zeta, h,
+                               phi0)) - s_inf
+
+    try:
+        Ps_equiv = float(math.exp(brentq(gap, math.log(0.05), math.log(500.0))))
+    except ValueError:
+        Ps_equiv = math.nan
+    return {"S_profile": S_rows, "S_ref": S_ref, "D_ref": D_ref, "Ps_ref": Ps_ref,
+            "t_half": th, "t_shift": t_shift,
+            "err_t_half": th / m["t_half"] - 1.0 if m["t_half"] > 0 else math.nan,
+            "s_steady": s_inf, "Ps_equivalent_steady": Ps_equiv,
+            "Ps_steady_measured": float(rates["Ps_steady"])}
 
 
 def matching_peclet(t_half, s0, *, D, h, phi0, Ps_from, t_end, factor_max=20.0) -> float:
@@ -1331,6 +1516,48 @@ def format_segregation_reference(r: dict) -> str:
         v = r[name]
         lines.append(f"{name:<34} {ps:7.4g} {d:8.4g} {v['t_half']:8.4g} "
                      f"{100 * v['err_t_half']:+7.1f}% {v['phi_rms_vs_particles']:8.4f}")
+    if "transient_rates" in r:
+        tr_ = r["transient_rates"]
+        f, g = tr_["fit"], tr_["flux_regression"]
+        lines.append(
+            f"T-eq. (27) fitted to the transient phi(z, t) (t {f['t_from']:.4g}-{f['t_to']:.4g}, "
+            f"{f['n_levels']} levels): S {f['S']:.4g} +- {f['S_stderr']:.2g}, D_r {f['D_r']:.4g} "
+            f"+- {f['D_r_stderr']:.2g}, Ps = S h / D_r {f['Ps']:.4g} +- {f['Ps_stderr']:.2g} "
+            f"(r2 {f['r2']:.3f}, rms {f['rms']:.3g}); D_r / D_self "
+            f"{tr_['D_r_over_D_self']:.3g}, S / (Ps D / h) {tr_['S_over_model_S']:.3g}, "
+            f"Ps / steady {tr_['Ps_transient_over_steady']:.3g}; its half-time "
+            f"{tr_['model']['t_half']:.4g} ({100 * tr_['model']['err_t_half']:+.1f} %)")
+        for key in ("fit_first", "fit_second"):
+            h_ = tr_[key]
+            if h_ is not None:
+                lines.append(f"  {key} (t {h_['t_from']:.4g}-{h_['t_to']:.4g}): S {h_['S']:.4g} "
+                             f"+- {h_['S_stderr']:.2g}, D_r {h_['D_r']:.4g} +- "
+                             f"{h_['D_r_stderr']:.2g}, Ps {h_['Ps']:.4g} (r2 {h_['r2']:.3f}"
+                             + ("" if h_["identified"] else
+                                f"; unidentified: {', '.join(h_['unidentified'])}") + ")")
+        lines.append(f"flux regression J = -c (S phi (1-phi) + D_r dphi/dz): S {g['S']:.4g} +- "
+                     f"{g['S_stderr']:.2g}, D_r {g['D_r']:.4g} +- {g['D_r_stderr']:.2g} "
+                     f"(r2 {g['r2']:.3f})")
+        lines.append(f"{'t window':>13} {'z':>5} {'phi':>5} {'dphi/dz':>8} {'J/c particles':>19} "
+                     f"{'steady model':>12} {'fitted':>9}")
+        for row in tr_["levels"]:
+            lines.append(f"{row['t_from']:6.0f}-{row['t_to']:<6.0f} {row['z']:5.1f} "
+                         f"{row['phi']:5.2f} {row['dphi_dz']:+8.4f} {row['J_over_c']:+10.5f} +- "
+                         f"{row['J_over_c_stderr']:.1e} {row['J_over_c_steady_model']:+12.5f} "
+                         f"{row['J_over_c_fitted_model']:+9.5f}")
+        fs = tr_["steady_model_from_measured_start"]
+        lines.append(f"steady (Ps, D) model from the particles' own profile at t0: half-time "
+                     f"{fs['t_half']:.4g} ({100 * fs['err_t_half']:+.1f} %)")
+        if "measured_profiles" in tr_:
+            mp = tr_["measured_profiles"]
+            lines.append("local S(z) = -(J/c + D(z) dphi/dz) / (phi (1-phi)): " + ", ".join(
+                f"z {p['z']:.0f}: {p['S']:.4f}" for p in mp["S_profile"]))
+            lines.append(f"T-eq. (27) with that S(z) and the banded D(z): half-time "
+                         f"{mp['t_half']:.4g} ({100 * mp['err_t_half']:+.1f} %), its steady "
+                         f"state as T-eq. (28)'s Ps {mp['Ps_equivalent_steady']:.4g} (the run's "
+                         f"profile: {mp['Ps_steady_measured']:.4g})")
+        lines.append("D_self by starting height: " + ", ".join(
+            f"{p['z_from']:.0f}-{p['z_to']:.0f}: {p['D']:.4f}" for p in tr_["D_profile"]))
     if "Ps_matching_half_time" in r:
         lines.append(f"Ps that gives the particles' half-time (D transient): "
                      f"{r['Ps_matching_half_time']:.4g}")
@@ -1431,6 +1658,21 @@ def format_tables(res: dict) -> str:
                          f"{s['t_half']:8.1f} {a['t_half']:7.1f}+-{a['t_half_std']:5.1f} "
                          f"{a['err_t_half']:+7.1%} {s['Ps']:6.2f} "
                          f"{s.get('Ps_matching_half_time', math.nan):8.2f}")
+    rt = [s for s in tr if "transient_rates" in s]
+    if rt:
+        lines += ["", "T-eq. (27)'s rates fitted to each run's transient phi(z, t) (t0 ... t0 + 2 "
+                      "half-times; first / second half: S of each)",
+                  f"{'sigma':>5} {'S':>16} {'D_r':>16} {'Ps_fit':>7} {'Ps':>6} {'S/S_mod':>7} "
+                  f"{'D_r/D':>6} {'r2':>5} {'S_1st':>7} {'S_2nd':>7}"]
+        for s in rt:
+            r = s["transient_rates"]
+            f = r["fit"]
+            halves = [r[k]["S"] if r.get(k) else math.nan for k in ("fit_first", "fit_second")]
+            lines.append(f"{s['sigma']:5g} {f['S']:8.5f}+-{f['S_stderr']:.5f} "
+                         f"{f['D_r']:8.5f}+-{f['D_r_stderr']:.5f} {f['Ps']:7.1f} {s['Ps']:6.2f} "
+                         f"{r['S_over_model_S']:7.2f} {r['D_r_over_D_self']:6.2f} "
+                         f"{f['r2']:5.2f} {halves[0]:7.4f} {halves[1]:7.4f}"
+                         + ("" if f["identified"] else "  (unidentified)"))
     return "\n".join(lines)
 
 
