@@ -217,6 +217,70 @@ def test_paper_segregation_diffusivities_are_measured(segregation_comparison):
         assert 0 < se < 0.1 * D
 
 
+#: T-eq. (27)'s rates measured on the transient against those the steady state gives (the
+#: steady profile's Ps, the self-diffusivity, S = Ps D / h), and the transient's two halves
+#: against each other: agreement within this (relative)
+TOL_RATES = 0.25
+
+
+def test_paper_segregation_transient_fit_describes_the_transient(segregation_comparison):
+    """T-eq. (27) with S and D_r fitted to the run's own phi(z, t) from t0 explains most of it
+    (r2 >= 0.9, both rates identified with stderrs below 5 %): the rates are measured, whatever
+    they say about the steady state."""
+    f = segregation_comparison["transient_rates"]["fit"]
+    assert f["identified"], f["unidentified"]
+    assert f["r2"] >= 0.9
+    assert f["S_stderr"] < 0.05 * f["S"] and f["D_r_stderr"] < 0.05 * f["D_r"]
+
+
+@pytest.mark.parametrize("variant", ["fitted_constant_rates", "measured_S_and_D_profiles",
+                                     "steady_rates_from_measured_start"])
+def test_paper_segregation_half_time_with_transient_rates(segregation_comparison, request,
+                                                          variant):
+    """The half-time within 20 % with what the transient measures: T-eq. (27) with the
+    constant rates fitted to phi(z, t); with the local S(z) and the banded D(z) measured on
+    it (depth-dependent rates); and with the steady (Ps, D) but started from the particles'
+    own profile at t0 instead of a mixed start aligned on s0 (is the protocol the gap?)."""
+    key = f"paper_seg_transient:{variant}"
+    if key in KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
+    r = segregation_comparison["transient_rates"]
+    err = {"fitted_constant_rates": r["model"]["err_t_half"],
+           "measured_S_and_D_profiles": r["measured_profiles"]["err_t_half"],
+           "steady_rates_from_measured_start":
+               r["steady_model_from_measured_start"]["err_t_half"]}[variant]
+    assert abs(err) <= ex.TOL_HALF_TIME, err
+
+
+@pytest.mark.parametrize("rate", ["S", "D_r", "Ps"])
+def test_paper_segregation_transient_rates_are_the_steady_ones(segregation_comparison, request,
+                                                               rate):
+    """The rates the transient shows equal those the model takes from the steady state: S
+    against Ps D / h, D_r against the self-diffusivity over the transient, Ps = S h / D_r
+    against the steady profile's (within 25 %).  If T-eq. (27) with constant rates held, all
+    three would."""
+    key = f"paper_seg_rates:{rate}"
+    if key in KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
+    r = segregation_comparison["transient_rates"]
+    ratio = {"S": r["S_over_model_S"], "D_r": r["D_r_over_D_self"],
+             "Ps": r["Ps_transient_over_steady"]}[rate]
+    assert abs(ratio - 1.0) <= TOL_RATES, ratio
+
+
+@pytest.mark.parametrize("rate", ["S", "D_r"])
+def test_paper_segregation_transient_rates_are_constant(segregation_comparison, request, rate):
+    """The rates fitted over the transient's first half (t0 to the particle half-time) and
+    over its second half agree within 25 %."""
+    key = f"paper_seg_rates_halves:{rate}"
+    if key in KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
+    r = segregation_comparison["transient_rates"]
+    a, b = r["fit_first"], r["fit_second"]
+    assert b is not None and a["identified"] and b["identified"]
+    assert abs(b[rate] / a[rate] - 1.0) <= TOL_RATES, (a[rate], b[rate])
+
+
 @pytest.fixture(scope="module")
 def paper_long_chute():
     """The long chute at the paper's species from the reference's two 26 deg steady runs alone
