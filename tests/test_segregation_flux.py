@@ -112,6 +112,12 @@ def test_fits_refuse_bad_input():
                                       z_from=1.0, z_to=1.5, t_from=0, t_to=2)
     with pytest.raises(ValueError, match="z_range"):
         fit_segregation_transient([0, 1, 2], [0.5, 1.0], np.zeros((3, 2)), h=2.0, phi0=0.5)
+    for kw, field in ((dict(phi0=1.0), "phi0"), (dict(n=4), "n = "),
+                      (dict(init_modes=-1), "init_modes")):
+        args = dict(h=2.0, phi0=0.5)
+        args.update(kw)
+        with pytest.raises(ValueError, match=field):
+            fit_segregation_transient([0, 1, 2], [0.5, 1.0, 1.5], np.zeros((3, 3)), **args)
     with pytest.raises(ValueError, match="h = "):
         fit_segregation_transient([0, 1, 2], [0.5, 1.0, 1.5], np.zeros((3, 3)), h=-1.0,
                                   phi0=0.5)

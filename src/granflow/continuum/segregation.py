@@ -214,6 +214,13 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
         raise ValueError("t must hold at least 3 increasing times")
     if not (math.isfinite(h) and h > 0):
         raise ValueError(f"h = {h!r} is out of range: allowed (0, inf)")
+    if not 0.0 < phi0 < 1.0:
+        raise ValueError(f"phi0 = {phi0!r} is out of range: allowed (0, 1)")
+    if n < 8:
+        raise ValueError(f"n = {n} is out of range: allowed >= 8")
+    if init_modes < 0 or not init_smoothing >= 0:
+        raise ValueError(f"init_modes = {init_modes!r}, init_smoothing = {init_smoothing!r}: "
+                         "allowed >= 0")
     lo, hi = (0.0, h) if z_range is None else (float(z_range[0]), float(z_range[1]))
     sel = (z >= lo) & (z <= hi)
     if sel.sum() < 3:
