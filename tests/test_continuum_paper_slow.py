@@ -233,6 +233,17 @@ def test_paper_segregation_transient_fit_describes_the_transient(segregation_com
     assert f["S_stderr"] < 0.05 * f["S"] and f["D_r_stderr"] < 0.05 * f["D_r"]
 
 
+def test_paper_segregation_velocity_scales_with_inverse_pressure(segregation_comparison):
+    """The local segregation velocity S(z) measured on the transient follows 1 / p: S p is
+    constant within a coefficient of variation of 0.15 over the levels above the basal layers
+    (z >= 5), the best of the three scalings tried (1 / p, shear rate, shear rate / p).
+    Measured 2026-12-02: S p 0.112-0.132 at z = 6 ... 18 (CV 0.06), S / gamma_dot 0.023-0.31
+    (CV 0.88), S p / gamma_dot CV 0.35."""
+    ps = segregation_comparison["transient_rates"]["pressure_scaling"]
+    assert ps["cv"]["S_p"] <= 0.15, ps["cv"]
+    assert ps["best"] == "S_p"
+
+
 @pytest.mark.parametrize("variant", ["fitted_constant_rates", "measured_S_and_D_profiles",
                                      "steady_rates_from_measured_start"])
 def test_paper_segregation_half_time_with_transient_rates(segregation_comparison, request,

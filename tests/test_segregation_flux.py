@@ -222,3 +222,29 @@ def test_local_segregation_velocity_inverts_the_flux():
     for r in out:
         assert r["S"] == pytest.approx(S_of(r["z"]), rel=1e-12)
         assert r["n_windows"] == 2 and r["S_stderr"] == pytest.approx(0.0, abs=1e-15)
+
+
+def test_pressure_scaling_finds_an_inverse_pressure_law(tmp_path):
+    """Level fluxes made with S = 0.1 / p on a layer with p = 12 - z and u = 3 (1 - (1 -
+    z / 12)^1.5) (Bagnold-like shear rate): S p is constant (coefficient of variation < 1e-3:
+    the profiles' +-1 d averages of p are exact for a linear p), S / gamma_dot is not, and the
+    inverse-pressure scaling is named the best."""
+    import xarray as xr
+
+    from granflow.continuum.experiments import segregation_pressure_scaling
+
+    zg = np.linspace(-2.0, 14.0, 321)
+    p = np.clip(12.0 - zg, 0.0, None)
+    u = 3.0 * (1.0 - np.clip(1.0 - zg / 12.0, 0.0, None) ** 1.5)
+    nc = tmp_path / "profiles.nc"
+    xr.Dataset({"velocity_x": ("z", u), "stress_zz": ("z", -p)}, coords={"z": zg}).to_netcdf(nc)
+    rows = []
+    for z in (4.0, 6.0, 8.0, 10.0):
+        phi, g = 0.5, -0.02
+        rows.append({"t_from": 0.0, "z": z, "phi": phi, "dphi_dz": g,
+                     "J_over_c": -(0.1 / (12.0 - z) * phi * (1 - phi) + 0.02 * g)})
+    rates = {"levels": rows, "D_profile": [{"z_from": 0.0, "z_to": 12.0, "D": 0.02}]}
+    r = segregation_pressure_scaling(rates, nc, base=0.0, z_from=0.0)
+    assert r["cv"]["S_p"] < 1e-3
+    assert r["cv"]["S_over_gamma_dot"] > 0.1
+    assert r["best"] == "S_p"

@@ -916,6 +916,9 @@ def compare_segregation_reference(run_dir, *, Ps_laws=None, Ps=None) -> dict:
     rates["model"] = {k: res["symmetric"][k] for k in ("t_half", "err_t_half", "s_steady",
                                                         "phi_rms_vs_particles")}
     rates["measured_profiles"] = measured_profile_prediction(m, rates)
+    if (run_dir / "profiles.nc").exists():
+        rates["pressure_scaling"] = segregation_pressure_scaling(
+            rates, run_dir / "profiles.nc", float(_summary(run_dir)["depth_averages"]["base"]))
     out["transient_rates"] = rates
     return out
 
@@ -1039,6 +1042,36 @@ def local_segregation_velocity(rates: dict) -> list[dict]:
                     "S_stderr": float(v.std(ddof=1) / math.sqrt(v.size)) if v.size > 1
                     else math.nan, "D_self": float(D_at(z))})
     return out
+
+
+def segregation_pressure_scaling(rates: dict, profiles_nc, base: float, *,
+                                 z_from: float = 5.0, half_width: float = 1.0) -> dict:
+    """How :func:`local_segregation_velocity`'s S(z) scales with the local pressure and shear
+    rate of the run's coarse-grained profiles (``profiles.nc``: p = -sigma_zz, shear rate
+    du_x/dz, each averaged over +-``half_width`` of the level; heights above ``base``): per
+    level S, p, gamma_dot and the three products S p (S ~ 1/p), S / gamma_dot (S ~ gamma_dot d,
+    the Savage-Lun / Fan et al. scaling) and S p / gamma_dot (S ~ gamma_dot / p, Trewhela,
+    Ancey & Gray 2021's), with each product's coefficient of variation over the levels at
+    z >= ``z_from`` (the basal layers left out): the smallest says which scaling the depth
+    profile follows."""
+    with xr.open_dataset(profiles_nc) as ds:
+        z = ds["z"].values - base
+        u = ds["velocity_x"].values
+        szz = ds["stress_zz"].values
+    p = -szz if np.nanmean(szz) < 0 else szz
+    gd = np.gradient(u, z)
+    rows = []
+    for e in local_segregation_velocity(rates):
+        m = np.abs(z - e["z"]) <= half_width + 1e-9
+        P, G = float(np.nanmean(p[m])), float(np.nanmean(gd[m]))
+        rows.append({"z": e["z"], "S": e["S"], "p": P, "gamma_dot": G, "S_p": e["S"] * P,
+                     "S_over_gamma_dot": e["S"] / G, "S_p_over_gamma_dot": e["S"] * P / G})
+    cv = {}
+    for key in ("S_p", "S_over_gamma_dot", "S_p_over_gamma_dot"):
+        v = np.array([r[key] for r in rows if r["z"] >= z_from])
+        cv[key] = float(np.std(v) / np.mean(v)) if v.size > 1 else math.nan
+    return {"levels": rows, "cv": cv, "z_from": z_from,
+            "best": min(cv, key=lambda k: cv[k] if math.isfinite(cv[k]) else math.inf)}
 
 
 def measured_profile_prediction(m: dict, rates: dict, *, t_end=None) -> dict:
@@ -1556,6 +1589,13 @@ def format_segregation_reference(r: dict) -> str:
                          f"{mp['t_half']:.4g} ({100 * mp['err_t_half']:+.1f} %), its steady "
                          f"state as T-eq. (28)'s Ps {mp['Ps_equivalent_steady']:.4g} (the run's "
                          f"profile: {mp['Ps_steady_measured']:.4g})")
+        if "pressure_scaling" in tr_:
+            ps_ = tr_["pressure_scaling"]
+            lines.append("S(z) against the profiles' pressure p and shear rate: " + ", ".join(
+                f"z {q['z']:.0f}: S p {q['S_p']:.3f}, S/gdot {q['S_over_gamma_dot']:.3f}"
+                for q in ps_["levels"]))
+            lines.append(f"  coefficient of variation over z >= {ps_['z_from']:g}: " + ", ".join(
+                f"{k} {v:.2f}" for k, v in ps_["cv"].items()) + f" (best: {ps_['best']})")
         lines.append("D_self by starting height: " + ", ".join(
             f"{p['z_from']:.0f}-{p['z_to']:.0f}: {p['D']:.4f}" for p in tr_["D_profile"]))
     if "Ps_matching_half_time" in r:
