@@ -248,3 +248,5 @@ def test_pressure_scaling_finds_an_inverse_pressure_law(tmp_path):
     assert r["cv"]["S_p"] < 1e-3
     assert r["cv"]["S_over_gamma_dot"] > 0.1
     assert r["best"] == "S_p"
+    # one level above z_from: no scaling can be told
+    assert segregation_pressure_scaling(rates, nc, base=0.0, z_from=9.0)["best"] is None

@@ -1053,7 +1053,7 @@ def segregation_pressure_scaling(rates: dict, profiles_nc, base: float, *,
     the Savage-Lun / Fan et al. scaling) and S p / gamma_dot (S ~ gamma_dot / p, Trewhela,
     Ancey & Gray 2021's), with each product's coefficient of variation over the levels at
     z >= ``z_from`` (the basal layers left out): the smallest says which scaling the depth
-    profile follows."""
+    profile follows (``best``; None where fewer than two levels lie there)."""
     with xr.open_dataset(profiles_nc) as ds:
         z = ds["z"].values - base
         u = ds["velocity_x"].values
@@ -1070,8 +1070,9 @@ def segregation_pressure_scaling(rates: dict, profiles_nc, base: float, *,
     for key in ("S_p", "S_over_gamma_dot", "S_p_over_gamma_dot"):
         v = np.array([r[key] for r in rows if r["z"] >= z_from])
         cv[key] = float(np.std(v) / np.mean(v)) if v.size > 1 else math.nan
+    finite = {k: v for k, v in cv.items() if math.isfinite(v)}
     return {"levels": rows, "cv": cv, "z_from": z_from,
-            "best": min(cv, key=lambda k: cv[k] if math.isfinite(cv[k]) else math.inf)}
+            "best": min(finite, key=finite.get) if finite else None}
 
 
 def measured_profile_prediction(m: dict, rates: dict, *, t_end=None) -> dict:
