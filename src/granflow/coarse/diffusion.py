@@ -81,17 +81,22 @@ class TracerObserver:
         return np.asarray(self.times), np.asarray(self.z), self.diameter
 
 
-def msd_z(t, z, t_from: float, lags):
-    """Mean squared z-displacement at the given lags (in time units, multiples of the sample
-    interval) over all particles and time origins in [t_from, t_end]: array (len(lags), n)
-    per particle."""
+def _window(t, z, t_from: float):
+    """The samples at t >= t_from (times, heights) and their sample interval."""
     t = np.asarray(t, float)
     z = np.asarray(z, float)
     keep = t >= t_from - 1e-9
     t, z = t[keep], z[keep]
     if t.size < 3:
         raise ValueError(f"too few samples after t = {t_from}: {t.size}")
-    dt = float(np.median(np.diff(t)))
+    return t, z, float(np.median(np.diff(t)))
+
+
+def msd_z(t, z, t_from: float, lags):
+    """Mean squared z-displacement at the given lags (in time units, multiples of the sample
+    interval) over all particles and time origins in [t_from, t_end]: array (len(lags), n)
+    per particle."""
+    t, z, dt = _window(t, z, t_from)
     out = []
     for lag in lags:
         k = int(round(lag / dt))
@@ -159,13 +164,7 @@ def self_diffusivity_profile(t, z, t_from: float, edges, *, tau_fit=(2.0, 10.0),
     each band [edges[i], edges[i+1]) (every time origin after ``t_from``), fitted as
     :func:`self_diffusivity`.  A particle leaves its band within the lag (rms sqrt(2 D tau),
     ~0.7 d at D = 0.024, tau = 10), so bands narrower than ~2 d blur into their neighbours."""
-    t = np.asarray(t, float)
-    z = np.asarray(z, float)
-    keep = t >= t_from - 1e-9
-    t, z = t[keep], z[keep]
-    if t.size < 3:
-        raise ValueError(f"too few samples after t = {t_from}: {t.size}")
-    dt = float(np.median(np.diff(t)))
+    t, z, dt = _window(t, z, t_from)
     lags = np.linspace(tau_fit[0], tau_fit[1], int(n_lags))
     ks = [int(round(lag / dt)) for lag in lags]
     if ks[0] < 1 or ks[-1] >= t.size:
