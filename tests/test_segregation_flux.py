@@ -250,3 +250,68 @@ def test_pressure_scaling_finds_an_inverse_pressure_law(tmp_path):
     assert r["best"] == "S_p"
     # one level above z_from: no scaling can be told
     assert segregation_pressure_scaling(rates, nc, base=0.0, z_from=9.0)["best"] is None
+
+
+def test_profile_peclet_recovers_the_Ps_of_a_steady_profile():
+    """A T-eq. (28) profile (with noise 0.01) gives back its Ps to 3 %; a mixed layer's Ps is
+    at the lower bound, and a flagged one."""
+    from granflow.continuum.experiments import profile_peclet
+    from granflow.fitting.segregation import phi_teq28
+
+    h = 24.0
+    z = np.arange(0.25, h, 0.25)
+    rng = np.random.default_rng(3)
+    for Ps in (3.0, 6.8, 25.0):
+        phi = phi_teq28(z / h, Ps, 0.5) + rng.normal(0.0, 0.01, z.size)
+        r = profile_peclet(z, phi, h=h, phi0=0.5, z_range=(1.0, h - 1.0))
+        assert r["Ps"] == pytest.approx(Ps, rel=0.03)
+        assert not r["at_bound"]
+    flat = profile_peclet(z, np.full(z.size, 0.5), h=h, phi0=0.5)
+    assert flat["at_bound"] and flat["rms"] < 5e-3
+    with pytest.raises(ValueError, match="z_range"):
+        profile_peclet(z, z * 0 + 0.5, h=h, phi0=0.5, z_range=(5.0, 5.2))
+
+
+def test_transient_fit_with_a_depth_shape_recovers_its_rates():
+    """T-eq. (27) with S ~ 1 / p (hydrostatic p, capped) from a partly segregated start: the
+    fit given the same S_shape gets S and D_r back to 2 %, and refuses the shape with the
+    asymmetric flux."""
+    from granflow.continuum.segregation import fit_segregation_transient, segregation_layer
+
+    h = 20.0
+    shape = lambda zeta: 0.5 / np.maximum(1.0 - np.asarray(zeta), 0.05)  # noqa: E731
+    n = 100
+    zc = (np.arange(n) + 0.5) / n
+    start = np.clip(0.5 + 0.1 * np.cos(np.pi * zc), 0.01, 0.99)
+    S, D = 0.01, 0.03
+    res = segregation_layer(Ps=S * h / D, D=D, h=h, phi0=0.5, t_end=200.0, n=n, n_out=21,
+                            phi_initial=start, S_shape=shape)
+    levels = zc * h
+    f = fit_segregation_transient(res.t.values, levels, res.phi.values, h=h, phi0=0.5,
+                                  z_range=(1.0, h - 1.0), n=n, init_smoothing=0.0,
+                                  init_modes=0, S_shape=shape)
+    assert f["identified"]
+    assert f["S"] == pytest.approx(S, rel=0.02) and f["D_r"] == pytest.approx(D, rel=0.02)
+    with pytest.raises(ValueError, match="S_shape"):
+        fit_segregation_transient(res.t.values, levels, res.phi.values, h=h, phi0=0.5,
+                                  flux="asymmetric", kappa=0.5, S_shape=shape)
+
+
+def test_inverse_pressure_shape_of_a_hydrostatic_layer(tmp_path):
+    """p = (h - z) (hydrostatic, stored as sigma_zz = -p): the shape is p(h/2) / p(z), 1 at
+    mid-depth, 2/3 at a quarter of the depth, capped at p_min near the surface."""
+    import xarray as xr
+
+    from granflow.continuum.experiments import inverse_pressure_shape
+
+    h, base = 20.0, 0.5
+    z = np.linspace(0.0, h, 401) + base
+    xr.Dataset({"stress_zz": ("z", -(h - (z - base)))}, coords={"z": z}).to_netcdf(
+        tmp_path / "profiles.nc")
+    shape, p_mid = inverse_pressure_shape(tmp_path / "profiles.nc", base, h, p_min=1.0)
+    assert p_mid == pytest.approx(10.0, rel=1e-6)
+    assert shape(0.5) == pytest.approx(1.0, rel=1e-6)
+    assert shape(0.25) == pytest.approx(2.0 / 3.0, rel=1e-6)
+    assert shape(0.99) == pytest.approx(10.0, rel=1e-6)     # capped: p(0.99 h) = 0.2 < 1
+    with pytest.raises(ValueError, match="p_min"):
+        inverse_pressure_shape(tmp_path / "profiles.nc", base, h, p_min=50.0)

@@ -919,8 +919,41 @@ def compare_segregation_reference(run_dir, *, Ps_laws=None, Ps=None) -> dict:
     if (run_dir / "profiles.nc").exists():
         rates["pressure_scaling"] = segregation_pressure_scaling(
             rates, run_dir / "profiles.nc", float(_summary(run_dir)["depth_averages"]["base"]))
+    rates["windows"] = transient_windows(m, run_dir)
+    if st is not None and (run_dir / "profiles.nc").exists():
+        out["pressure_scaled"] = pressure_scaled_segregation(m, run_dir, D=D)
     out["transient_rates"] = rates
     return out
+
+
+def _transient_profiles(m: dict, tracer_dir, *, every: float, average: float, width: float,
+                        t_to=None) -> dict:
+    """The tracers of a bidisperse run (heights above its base) and phi(z, t) on levels 0.25 d
+    apart every ``every`` time units from its start of shear t0 to ``t_to`` (default two
+    particle half-times after t0; the end of the tracers at most), each the coarse-grained
+    small-particle share (Gaussian ``width``) averaged over +-``average``."""
+    from ..coarse.segregation_flux import concentration_fields
+
+    s = _summary(m["run"])
+    da, pr = s["depth_averages"], s["params"]
+    base, surface = float(da["base"]), float(da["surface"])
+    h = surface - base
+    area = float(pr["Lx"]) * float(pr["Ly"])
+    with np.load(Path(tracer_dir) / "tracers.npz") as f:
+        t, z, d = f["time"], f["z"] - base, f["diameter"]
+    th = m["t_half"] if math.isfinite(m["t_half"]) and m["t_half"] > 0 else 100.0
+    t0 = m["t0"]
+    t1 = min(float(t[-1]) - average, t0 + 2.0 * th if t_to is None else float(t_to))
+    times = np.arange(t0, t1 + 1e-9, every)
+    levels = np.arange(0.25, h - 0.2, 0.25)
+    prof = []
+    for tt in times:
+        w = np.abs(t - tt) <= average + 1e-9
+        _, cs, ca = concentration_fields(z[w], d, levels, area=area, width=width)
+        prof.append(cs.mean(axis=0) / ca.mean(axis=0))
+    return {"t": t, "z": z, "diameter": d, "h": h, "area": area, "base": base,
+            "times": times, "levels": levels, "phi": np.asarray(prof), "t_half": th,
+            "t0": t0, "t1": t1}
 
 
 def transient_rates(m: dict, tracer_dir, *, Ps: float, D: float, every: float = 2.0,
@@ -950,31 +983,14 @@ def transient_rates(m: dict, tracer_dir, *, Ps: float, D: float, every: float = 
       particles' own profile at t0 (not from a mixed start aligned on s0): its half-time from
       there to half its own steady indicator."""
     from ..coarse.diffusion import self_diffusivity_profile
-    from ..coarse.segregation_flux import (
-        concentration_fields,
-        level_fluxes,
-        segregation_flux_from_tracers,
-    )
+    from ..coarse.segregation_flux import level_fluxes, segregation_flux_from_tracers
     from .segregation import fit_segregation_transient
 
-    s = _summary(m["run"])
-    da, pr = s["depth_averages"], s["params"]
-    base, surface = float(da["base"]), float(da["surface"])
-    h = surface - base
-    area = float(pr["Lx"]) * float(pr["Ly"])
-    with np.load(Path(tracer_dir) / "tracers.npz") as f:
-        t, z, d = f["time"], f["z"] - base, f["diameter"]
-    th = m["t_half"] if math.isfinite(m["t_half"]) and m["t_half"] > 0 else 100.0
-    t0 = m["t0"]
-    t1 = min(float(t[-1]) - average, t0 + 2.0 * th if t_to is None else float(t_to))
-    times = np.arange(t0, t1 + 1e-9, every)
-    levels = np.arange(0.25, h - 0.2, 0.25)
-    prof = []
-    for tt in times:
-        w = np.abs(t - tt) <= average + 1e-9
-        _, cs, ca = concentration_fields(z[w], d, levels, area=area, width=width)
-        prof.append(cs.mean(axis=0) / ca.mean(axis=0))
-    prof = np.asarray(prof)
+    tp = _transient_profiles(m, tracer_dir, every=every, average=average, width=width,
+                             t_to=t_to)
+    t, z, d, h, area = tp["t"], tp["z"], tp["diameter"], tp["h"], tp["area"]
+    times, levels, prof, th, t0, t1 = (tp[k] for k in ("times", "levels", "phi", "t_half",
+                                                       "t0", "t1"))
     kw = dict(h=h, phi0=m["phi0"], z_range=(margin, h - margin))
     fit = fit_segregation_transient(times, levels, prof, **kw)
     half = times <= t0 + th + 1e-9
@@ -1013,6 +1029,196 @@ def transient_rates(m: dict, tracer_dir, *, Ps: float, D: float, every: float = 
             "D_self": D, "S_steady_model": S_model,
             "Ps_transient_over_steady": fit["Ps"] / Ps, "D_r_over_D_self": fit["D_r"] / D,
             "S_over_model_S": fit["S"] / S_model}
+
+
+def profile_peclet(z, phi, *, h: float, phi0: float, z_range=None) -> dict:
+    """The Ps of T-eq. (28) whose steady profile is nearest (least squares over ``z_range``) to
+    one measured profile phi(z) (heights above the base): how sharp a profile is in the steady
+    model's terms, for profiles that are not (yet) steady too.  Returns Ps and the rms
+    residual."""
+    from scipy.optimize import minimize_scalar
+
+    from ..fitting.segregation import phi_teq28
+
+    z, phi = np.asarray(z, float), np.asarray(phi, float)
+    lo, hi = (0.0, h) if z_range is None else z_range
+    sel = (z >= lo) & (z <= hi)
+    if sel.sum() < 3:
+        raise ValueError(f"z_range = [{lo:g}, {hi:g}] holds {int(sel.sum())} levels: need >= 3")
+
+    def cost(log_ps):
+        return float(np.mean((phi_teq28(z[sel] / h, math.exp(log_ps), phi0) - phi[sel]) ** 2))
+
+    r = minimize_scalar(cost, bounds=(math.log(0.05), math.log(1000.0)), method="bounded")
+    return {"Ps": float(math.exp(r.x)), "rms": math.sqrt(r.fun),
+            "at_bound": bool(r.x < math.log(0.06) or r.x > math.log(900.0))}
+
+
+def transient_windows(m: dict, tracer_dir, *, n_windows: int = 8, every: float = 2.0,
+                      average: float = 1.0, width: float = 0.5, margin: float = 1.0) -> dict:
+    """How T-eq. (27)'s rates change over a run's segregation, and what changes with them: the
+    tracers' span from the start of shear t0 to their end cut into ``n_windows`` equal windows,
+    and per window
+
+    * ``s``: the mean segregation indicator (from s0; ``m``'s s(t)) and ``u_mean`` (the
+      flow's mean velocity, ``series.nc``): is the flow itself still changing;
+    * ``D``, ``D_small``, ``D_large``: the self-diffusivity in z over the window
+      (:func:`transient_diffusivity`);
+    * ``fit``: S, D_r (and Ps = S h / D_r) of T-eq. (27) fitted to the window's phi(z, t) from
+      its own start (:func:`granflow.continuum.segregation.fit_segregation_transient`; its
+      ``identified`` flag says whether the window pins them);
+    * ``Ps_profile``: the T-eq. (28) Ps nearest the window's last profile
+      (:func:`profile_peclet`): the profile's sharpness, which a constant-rate T-eq. (27)
+      takes monotonically from the start's towards the steady Ps.
+
+    Constant rates would give one S and D_r in every window."""
+    from .segregation import fit_segregation_transient
+
+    if n_windows < 2:
+        raise ValueError(f"n_windows = {n_windows} is out of range: allowed >= 2")
+    with np.load(Path(tracer_dir) / "tracers.npz") as f:
+        t_last = float(f["time"][-1]) - average
+    tp = _transient_profiles(m, tracer_dir, every=every, average=average, width=width,
+                             t_to=t_last)
+    times, levels, prof, h = tp["times"], tp["levels"], tp["phi"], tp["h"]
+    edges = np.linspace(tp["t0"], float(times[-1]), int(n_windows) + 1)
+    with xr.open_dataset(Path(m["run"]) / "series.nc") as ser:
+        ts, us = ser["t"].values, ser["u_mean"].values
+    ms_t = np.asarray(m["t"], float) + m["t0"]
+    ms_s = np.asarray(m["s"], float)
+    kw = dict(h=h, phi0=m["phi0"], z_range=(margin, h - margin))
+    rows = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        w = (times >= a - 1e-9) & (times <= b + 1e-9)
+        fit = fit_segregation_transient(times[w], levels, prof[w], **kw)
+        D = transient_diffusivity(tracer_dir, float(a), float(b))
+        ws = (ms_t >= a) & (ms_t <= b)
+        wu = (ts >= a) & (ts <= b)
+        pe = profile_peclet(levels, prof[w][-1], **kw)
+        rows.append({"t_from": float(a), "t_to": float(b),
+                     "s": float(ms_s[ws].mean()) if ws.any() else math.nan,
+                     "u_mean": float(us[wu].mean()) if wu.any() else math.nan,
+                     "D": D["D"], "D_stderr": D["D_stderr"], "D_small": D["D_small"],
+                     "D_large": D["D_large"],
+                     "fit": {k: fit[k] for k in ("S", "S_stderr", "D_r", "D_r_stderr", "Ps",
+                                                 "Ps_stderr", "r2", "identified",
+                                                 "unidentified")},
+                     "Ps_profile": pe["Ps"], "Ps_profile_rms": pe["rms"]})
+    return {"windows": rows, "h": h, "t0": tp["t0"], "every": every, "average": average,
+            "width": width, "margin": margin}
+
+
+def inverse_pressure_shape(profiles_nc, base: float, h: float, *, p_min: float = 1.0):
+    """S_shape(zeta) = p(h / 2) / max(p(z), p_min) of a run's coarse-grained pressure profile
+    (``profiles.nc``: p = -sigma_zz, heights above ``base``): a segregation velocity S ~ 1 / p,
+    normalised to 1 at mid-depth, capped where the overburden falls below ``p_min`` (the top
+    layer of particles; the result hardly depends on it, the top being pure large there).
+    Returns (shape, p_mid)."""
+    with xr.open_dataset(profiles_nc) as ds:
+        z = ds["z"].values - base
+        szz = ds["stress_zz"].values
+    p = -szz if np.nanmean(szz) < 0 else szz
+    ok = np.isfinite(p)
+    z, p = z[ok], p[ok]
+    p_mid = float(np.interp(0.5 * h, z, p))
+    if not p_mid > p_min:
+        raise ValueError(f"pressure at mid-depth {p_mid:g} is not above p_min = {p_min:g}")
+    return (lambda zeta: p_mid / np.maximum(np.interp(np.asarray(zeta) * h, z, p), p_min)), p_mid
+
+
+def _bulk_centre(phi, zc, z_from: float) -> float:
+    """Centre of mass height of the small particles' volume above ``z_from`` (cells zc)."""
+    k = zc >= z_from
+    return float((phi[k] * zc[k]).sum() / phi[k].sum())
+
+
+def pressure_scaled_segregation(m: dict, run_dir, *, D: float, z_bulk: float = 4.0,
+                                every: float = 5.0, n: int = 200) -> dict:
+    """T-eq. (27) with a segregation velocity that scales as 1 / p (S(z) = S_mid p_mid / p(z),
+    :func:`inverse_pressure_shape`; what the transient's local S(z) shows,
+    :func:`segregation_pressure_scaling`) against a bidisperse run, on the bulk above
+    ``z_bulk`` (the basal layers fill with small particles within ~70 time units at the rough
+    base, a wall effect outside T-eq. (27)):
+
+    * ``steady``: the run's steady profile (``row.json``) at z >= z_bulk fitted with the 1 / p
+      law's exact steady state (one parameter, Ps_mid = S_mid h / D) beside T-eq. (28)'s
+      constant-rate fit: rms of each;
+    * ``transient``: S_mid and D_r of the 1 / p model fitted to the transient phi(z, t) (t0 to
+      two particle half-times; z_bulk to h - 1; :func:`fit_segregation_transient`), D_r
+      against the self-diffusivity ``D``;
+    * ``prediction`` / ``prediction_transient_rates``: the bulk's half-time (centre of mass of
+      the small particles above z_bulk, from the particles' own profile at t0) of the 1 / p
+      model with the steady profile's Ps_mid and D (a closure measured in steady flow), and
+      with the transient's fitted rates, against the particles'."""
+    from scipy.optimize import minimize_scalar
+
+    from ..fitting.segregation import phi_teq28
+    from .segregation import (
+        _smooth_reflecting,
+        fit_segregation_transient,
+        half_time,
+        segregation_layer,
+        steady_profile_shaped,
+    )
+
+    run_dir = Path(run_dir)
+    row = json.loads((run_dir / "row.json").read_text())
+    sp = row["segregation_profile"]
+    zeta_p, phi_p = np.asarray(sp["zeta"], float), np.asarray(sp["phi"], float)
+    tp = _transient_profiles(m, run_dir, every=every, average=1.0, width=0.5)
+    h, phi0 = tp["h"], m["phi0"]
+    if not 0.0 <= z_bulk < 0.5 * h:
+        raise ValueError(f"z_bulk = {z_bulk!r} is out of range: allowed [0, h / 2 = {h / 2:g})")
+    shape, p_mid = inverse_pressure_shape(run_dir / "profiles.nc", tp["base"], h)
+    sel = zeta_p * h >= z_bulk
+    zc_n = (np.arange(400) + 0.5) / 400
+
+    def rms_p(log_ps):
+        prof = steady_profile_shaped(math.exp(log_ps), phi0, 400, S_shape=shape)
+        return float(np.sqrt(np.mean((np.interp(zeta_p[sel], zc_n, prof) - phi_p[sel]) ** 2)))
+
+    def rms_c(log_ps):
+        return float(np.sqrt(np.mean((phi_teq28(zeta_p[sel], math.exp(log_ps), phi0)
+                                      - phi_p[sel]) ** 2)))
+
+    fp = minimize_scalar(rms_p, bounds=(math.log(0.1), math.log(200.0)), method="bounded")
+    fc = minimize_scalar(rms_c, bounds=(math.log(0.1), math.log(200.0)), method="bounded")
+    Ps_mid = float(math.exp(fp.x))
+    steady = {"Ps_mid": Ps_mid, "rms": float(fp.fun), "A": Ps_mid * D / h * p_mid,
+              "Ps_constant": float(math.exp(fc.x)), "rms_constant": float(fc.fun)}
+    fit = fit_segregation_transient(tp["times"], tp["levels"], tp["phi"], h=h, phi0=phi0,
+                                    z_range=(z_bulk, h - 1.0), S_shape=shape)
+    transient = {k: fit[k] for k in ("S", "S_stderr", "D_r", "D_r_stderr", "Ps", "Ps_stderr",
+                                     "r2", "rms", "identified", "unidentified", "t_from",
+                                     "t_to")}
+    transient.update(A=fit["S"] * p_mid, D_r_over_D_self=fit["D_r"] / D,
+                     Ps_over_steady=fit["Ps"] / Ps_mid)
+    # the particles' bulk centre of mass over the whole run, and the models from their t0
+    full = _transient_profiles(m, run_dir, every=every, average=1.0, width=0.5,
+                               t_to=math.inf)
+    zc = (np.arange(n) + 0.5) / n * h
+    meas = np.array([np.interp(zc, full["levels"], q) for q in full["phi"]])
+    cm = np.array([_bulk_centre(q, zc, z_bulk) for q in meas])
+    t_rel = full["times"] - full["t0"]
+    th_particles = half_time(t_rel, cm, cm[0], cm[-1])
+    start = _smooth_reflecting(meas[0], 0.5 * n / h)
+    start = np.clip(start * (phi0 / start.mean()), 1e-9, 1.0 - 1e-9)
+
+    def predict(Ps, Dm):
+        res = segregation_layer(Ps=Ps, D=Dm, h=h, phi0=phi0, t_end=4.0 * max(t_rel[-1], 1.0),
+                                n=n, n_out=1601, phi_initial=start, S_shape=shape)
+        c = np.array([_bulk_centre(q, zc, z_bulk) for q in res.phi.values])
+        c_inf = _bulk_centre(steady_profile_shaped(Ps, phi0, n, S_shape=shape), zc, z_bulk)
+        th = half_time(res.t.values, c, c[0], c_inf)
+        return {"Ps_mid": float(Ps), "D": float(Dm), "t_half": th,
+                "err_t_half": th / th_particles - 1.0, "centre_steady": c_inf,
+                "centre_at_particles_end": float(np.interp(t_rel[-1], res.t.values, c))}
+
+    return {"z_bulk": z_bulk, "p_mid": p_mid, "h": h, "D_self": D, "steady": steady,
+            "transient": transient, "t_half_particles": th_particles,
+            "centre_particles_start": float(cm[0]), "centre_particles_end": float(cm[-1]),
+            "prediction": predict(Ps_mid, D),
+            "prediction_transient_rates": predict(fit["Ps"], fit["D_r"])}
 
 
 def local_segregation_velocity(rates: dict) -> list[dict]:
@@ -1599,6 +1805,31 @@ def format_segregation_reference(r: dict) -> str:
                 f"{k} {v:.2f}" for k, v in ps_["cv"].items()) + f" (best: {ps_['best']})")
         lines.append("D_self by starting height: " + ", ".join(
             f"{p['z_from']:.0f}-{p['z_to']:.0f}: {p['D']:.4f}" for p in tr_["D_profile"]))
+        if "windows" in tr_:
+            lines.append(f"{'t window':>13} {'s':>7} {'u_mean':>7} {'D_self':>7} {'S':>8} "
+                         f"{'D_r':>8} {'Ps fit':>7} {'r2':>5} {'Ps of profile':>13}")
+            for w in tr_["windows"]["windows"]:
+                f_ = w["fit"]
+                lines.append(f"{w['t_from']:6.0f}-{w['t_to']:<6.0f} {w['s']:7.4f} "
+                             f"{w['u_mean']:7.3f} {w['D']:7.4f} {f_['S']:8.5f} {f_['D_r']:8.5f} "
+                             f"{f_['Ps']:7.3g} {f_['r2']:5.2f} {w['Ps_profile']:13.3g}"
+                             + ("" if f_["identified"] else
+                                " (unidentified: " + ", ".join(f_["unidentified"]) + ")"))
+    if "pressure_scaled" in r:
+        q = r["pressure_scaled"]
+        st_, tr2, a, b = q["steady"], q["transient"], q["prediction"], q["prediction_transient_rates"]
+        lines.append(f"S ~ 1 / p (S(z) = S_mid p_mid / p(z), p_mid {q['p_mid']:.3g}), bulk z >= "
+                     f"{q['z_bulk']:g}: steady profile Ps_mid {st_['Ps_mid']:.4g} (rms "
+                     f"{st_['rms']:.4f}; constant-rate T-eq. (28) Ps {st_['Ps_constant']:.4g}, rms "
+                     f"{st_['rms_constant']:.4f}); fitted to the transient (t {tr2['t_from']:.4g}-"
+                     f"{tr2['t_to']:.4g}): S_mid {tr2['S']:.4g} +- {tr2['S_stderr']:.2g} (A = S p "
+                     f"{tr2['A']:.3g}), D_r {tr2['D_r']:.4g} +- {tr2['D_r_stderr']:.2g} "
+                     f"({tr2['D_r_over_D_self']:.3g} x D_self), Ps_mid {tr2['Ps']:.4g} "
+                     f"({tr2['Ps_over_steady']:.3g} x the steady profile's; r2 {tr2['r2']:.3f})")
+        lines.append(f"  bulk half-time: particles {q['t_half_particles']:.4g}; 1 / p model with "
+                     f"the steady profile's Ps_mid and D_self {a['t_half']:.4g} "
+                     f"({100 * a['err_t_half']:+.1f} %), with the transient's rates "
+                     f"{b['t_half']:.4g} ({100 * b['err_t_half']:+.1f} %)")
     if "Ps_matching_half_time" in r:
         lines.append(f"Ps that gives the particles' half-time (D transient): "
                      f"{r['Ps_matching_half_time']:.4g}")

@@ -178,7 +178,7 @@ def half_time(t, s, s_start: float, s_final: float) -> float:
 def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
                               flux: str = "symmetric", kappa: float = 0.0, n: int = 100,
                               init_smoothing: float = 0.5, init_modes: int = 3, S0: float = 0.01,
-                              D0: float = 0.01) -> dict:
+                              D0: float = 0.01, S_shape=None, D_shape=None) -> dict:
     """S and D_r of T-eq. (27) fitted to a measured transient phi(z, t) (least squares).
 
     ``t`` (times), ``z`` (heights above the base, 0 <= z <= h) and ``phi`` (times, levels): the
@@ -193,6 +193,8 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
     would otherwise be frozen into the model and bias the rates (S by up to 12 % at a noise of
     0.03 per level without them).  The parameters
     are fitted in log space (both stay positive): Ps = S h / D_r and the time scale h^2 / D_r.
+    ``S_shape``, ``D_shape``: depth dependence of the rates as in :func:`segregation_layer`
+    (symmetric flux only); S and D_r are then the rates where the shapes are 1.
 
     Unlike the flux regression (:func:`granflow.coarse.segregation_flux.fit_segregation_flux`)
     the noise of the measured profile enters only as the residual, not as a regressor (no
@@ -225,6 +227,10 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
     sel = (z >= lo) & (z <= hi)
     if sel.sum() < 3:
         raise ValueError(f"z_range = [{lo:g}, {hi:g}] holds {int(sel.sum())} levels: need >= 3")
+    if (S_shape is not None or D_shape is not None) and flux != "symmetric":
+        raise ValueError(f"S_shape / D_shape with flux = {flux!r}: allowed only with the "
+                         "symmetric flux")
+    s_face, d_face = _face_shapes(S_shape, D_shape, n)
     zeta_c = (np.arange(n) + 0.5) / n
     init = _smooth_reflecting(np.interp(zeta_c * h, z, phi[0]), init_smoothing * n / h)
     init = np.clip(init * (phi0 / init.mean()), 1e-9, 1.0 - 1e-9)
@@ -235,7 +241,8 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
     def model(x):
         S, D = math.exp(x[0]), math.exp(x[1])
         start = np.clip(init + x[2:] @ modes, 1e-9, 1.0 - 1e-9)
-        prof = _evolve(S * h / D, D, h, start, t - t[0], flux, kappa, rtol=1e-6, atol=1e-8)
+        prof = _evolve(S * h / D, D, h, start, t - t[0], flux, kappa, rtol=1e-6, atol=1e-8,
+                       s_face=s_face, d_face=d_face)
         return np.array([np.interp(z[sel], zeta_c * h, p) for p in prof[1:]])
 
     def resid(x):
