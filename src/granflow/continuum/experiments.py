@@ -1133,7 +1133,8 @@ def _bulk_centre(phi, zc, z_from: float) -> float:
 
 
 def pressure_scaled_segregation(m: dict, run_dir, *, D: float, z_bulk: float = 4.0,
-                                every: float = 5.0, n: int = 200) -> dict:
+                                every: float = 5.0, n: int = 200,
+                                kappas=(0.25, 0.5, 0.75, 0.9)) -> dict:
     """T-eq. (27) with a segregation velocity that scales as 1 / p (S(z) = S_mid p_mid / p(z),
     :func:`inverse_pressure_shape`; what the transient's local S(z) shows,
     :func:`segregation_pressure_scaling`) against a bidisperse run, on the bulk above
@@ -1149,7 +1150,14 @@ def pressure_scaled_segregation(m: dict, run_dir, *, D: float, z_bulk: float = 4
     * ``prediction`` / ``prediction_transient_rates``: the bulk's half-time (centre of mass of
       the small particles above z_bulk, from the particles' own profile at t0) of the 1 / p
       model with the steady profile's Ps_mid and D (a closure measured in steady flow), and
-      with the transient's fitted rates, against the particles'."""
+      with the transient's fitted rates, against the particles';
+    * ``asymmetric``: the same two fits with seed 001's asymmetric flux for each of ``kappas``
+      (``scan``), and ``kappa_consistent``, the kappa at which the transient's Ps_mid equals
+      the steady profile's (log-linear interpolation in the scan; None where it does not
+      cross): there one set of rates has both the transient and the steady state, and its
+      D_r against the self-diffusivity says what the closure D_r = D_self misses
+      (``at_kappa``, with the predictions from the steady Ps_mid there and D, or the
+      transient's D_r: the one model that has both, checked on its own half-time)."""
     from scipy.optimize import minimize_scalar
 
     from ..fitting.segregation import phi_teq28
@@ -1169,30 +1177,40 @@ def pressure_scaled_segregation(m: dict, run_dir, *, D: float, z_bulk: float = 4
     h, phi0 = tp["h"], m["phi0"]
     if not 0.0 <= z_bulk < 0.5 * h:
         raise ValueError(f"z_bulk = {z_bulk!r} is out of range: allowed [0, h / 2 = {h / 2:g})")
+    if not all(0.0 <= k < 1.0 for k in kappas):
+        raise ValueError(f"kappas = {list(kappas)} are out of range: allowed [0, 1)")
     shape, p_mid = inverse_pressure_shape(run_dir / "profiles.nc", tp["base"], h)
     sel = zeta_p * h >= z_bulk
     zc_n = (np.arange(400) + 0.5) / 400
+    bounds = (math.log(0.1), math.log(200.0))
 
-    def rms_p(log_ps):
-        prof = steady_profile_shaped(math.exp(log_ps), phi0, 400, S_shape=shape)
-        return float(np.sqrt(np.mean((np.interp(zeta_p[sel], zc_n, prof) - phi_p[sel]) ** 2)))
+    def steady_fit(flux, kappa):
+        def rms(log_ps):
+            prof = steady_profile_shaped(math.exp(log_ps), phi0, 400, S_shape=shape, flux=flux,
+                                         kappa=kappa)
+            return float(np.sqrt(np.mean((np.interp(zeta_p[sel], zc_n, prof) - phi_p[sel])
+                                         ** 2)))
 
-    def rms_c(log_ps):
-        return float(np.sqrt(np.mean((phi_teq28(zeta_p[sel], math.exp(log_ps), phi0)
-                                      - phi_p[sel]) ** 2)))
+        r = minimize_scalar(rms, bounds=bounds, method="bounded", options={"xatol": 1e-4})
+        return float(math.exp(r.x)), float(r.fun)
 
-    fp = minimize_scalar(rms_p, bounds=(math.log(0.1), math.log(200.0)), method="bounded")
-    fc = minimize_scalar(rms_c, bounds=(math.log(0.1), math.log(200.0)), method="bounded")
-    Ps_mid = float(math.exp(fp.x))
-    steady = {"Ps_mid": Ps_mid, "rms": float(fp.fun), "A": Ps_mid * D / h * p_mid,
-              "Ps_constant": float(math.exp(fc.x)), "rms_constant": float(fc.fun)}
-    fit = fit_segregation_transient(tp["times"], tp["levels"], tp["phi"], h=h, phi0=phi0,
-                                    z_range=(z_bulk, h - 1.0), S_shape=shape)
-    transient = {k: fit[k] for k in ("S", "S_stderr", "D_r", "D_r_stderr", "Ps", "Ps_stderr",
-                                     "r2", "rms", "identified", "unidentified", "t_from",
-                                     "t_to")}
-    transient.update(A=fit["S"] * p_mid, D_r_over_D_self=fit["D_r"] / D,
-                     Ps_over_steady=fit["Ps"] / Ps_mid)
+    def transient_fit(flux, kappa):
+        f = fit_segregation_transient(tp["times"], tp["levels"], tp["phi"], h=h, phi0=phi0,
+                                      z_range=(z_bulk, h - 1.0), S_shape=shape, flux=flux,
+                                      kappa=kappa)
+        out = {k: f[k] for k in ("S", "S_stderr", "D_r", "D_r_stderr", "Ps", "Ps_stderr", "r2",
+                                 "rms", "identified", "unidentified", "t_from", "t_to")}
+        out.update(A=f["S"] * p_mid, D_r_over_D_self=f["D_r"] / D)
+        return out
+
+    Ps_mid, rms_1p = steady_fit("symmetric", 0.0)
+    rc = minimize_scalar(lambda lp: float(np.sqrt(np.mean(
+        (phi_teq28(zeta_p[sel], math.exp(lp), phi0) - phi_p[sel]) ** 2))), bounds=bounds,
+        method="bounded")
+    steady = {"Ps_mid": Ps_mid, "rms": rms_1p, "A": Ps_mid * D / h * p_mid,
+              "Ps_constant": float(math.exp(rc.x)), "rms_constant": float(rc.fun)}
+    transient = transient_fit("symmetric", 0.0)
+    transient["Ps_over_steady"] = transient["Ps"] / Ps_mid
     # the particles' bulk centre of mass over the whole run, and the models from their t0
     full = _transient_profiles(m, run_dir, every=every, average=1.0, width=0.5,
                                t_to=math.inf)
@@ -1204,21 +1222,51 @@ def pressure_scaled_segregation(m: dict, run_dir, *, D: float, z_bulk: float = 4
     start = _smooth_reflecting(meas[0], 0.5 * n / h)
     start = np.clip(start * (phi0 / start.mean()), 1e-9, 1.0 - 1e-9)
 
-    def predict(Ps, Dm):
+    def predict(Ps, Dm, flux="symmetric", kappa=0.0):
         res = segregation_layer(Ps=Ps, D=Dm, h=h, phi0=phi0, t_end=4.0 * max(t_rel[-1], 1.0),
-                                n=n, n_out=1601, phi_initial=start, S_shape=shape)
+                                n=n, n_out=1601, phi_initial=start, S_shape=shape, flux=flux,
+                                kappa=kappa)
         c = np.array([_bulk_centre(q, zc, z_bulk) for q in res.phi.values])
-        c_inf = _bulk_centre(steady_profile_shaped(Ps, phi0, n, S_shape=shape), zc, z_bulk)
+        c_inf = _bulk_centre(res.phi_steady.values, zc, z_bulk)
         th = half_time(res.t.values, c, c[0], c_inf)
-        return {"Ps_mid": float(Ps), "D": float(Dm), "t_half": th,
-                "err_t_half": th / th_particles - 1.0, "centre_steady": c_inf,
+        return {"Ps_mid": float(Ps), "D": float(Dm), "flux": flux, "kappa": float(kappa),
+                "t_half": th, "err_t_half": th / th_particles - 1.0, "centre_steady": c_inf,
                 "centre_at_particles_end": float(np.interp(t_rel[-1], res.t.values, c))}
 
+    scan = [{"kappa": 0.0, "Ps_mid_steady": Ps_mid, "rms_steady": rms_1p,
+             "Ps_mid_transient": transient["Ps"], "D_r_over_D_self": transient["D_r_over_D_self"],
+             "r2": transient["r2"]}]
+    for k in kappas:
+        if k == 0.0:
+            continue
+        ps_s, rms_s = steady_fit("asymmetric", float(k))
+        tr = transient_fit("asymmetric", float(k))
+        scan.append({"kappa": float(k), "Ps_mid_steady": ps_s, "rms_steady": rms_s,
+                     "Ps_mid_transient": tr["Ps"], "D_r_over_D_self": tr["D_r_over_D_self"],
+                     "r2": tr["r2"]})
+    scan.sort(key=lambda r: r["kappa"])
+    gap = [math.log(r["Ps_mid_transient"] / r["Ps_mid_steady"]) for r in scan]
+    k_star = None
+    for i in range(len(scan) - 1):
+        if gap[i] == 0.0 or gap[i] * gap[i + 1] < 0:
+            k0, k1 = scan[i]["kappa"], scan[i + 1]["kappa"]
+            k_star = k0 + (k1 - k0) * gap[i] / (gap[i] - gap[i + 1])
+            break
+    at_kappa = None
+    if k_star is not None:
+        flux_k = "asymmetric" if k_star > 0 else "symmetric"
+        ps_s, rms_s = steady_fit(flux_k, k_star)
+        tr = transient_fit(flux_k, k_star)
+        at_kappa = {"kappa": k_star, "Ps_mid_steady": ps_s, "rms_steady": rms_s,
+                    "transient": tr, "Ps_over_steady": tr["Ps"] / ps_s,
+                    "prediction": predict(ps_s, D, flux_k, k_star),
+                    "prediction_fitted_D_r": predict(ps_s, tr["D_r"], flux_k, k_star)}
     return {"z_bulk": z_bulk, "p_mid": p_mid, "h": h, "D_self": D, "steady": steady,
             "transient": transient, "t_half_particles": th_particles,
             "centre_particles_start": float(cm[0]), "centre_particles_end": float(cm[-1]),
             "prediction": predict(Ps_mid, D),
-            "prediction_transient_rates": predict(fit["Ps"], fit["D_r"])}
+            "prediction_transient_rates": predict(transient["Ps"], transient["D_r"]),
+            "asymmetric": {"scan": scan, "kappa_consistent": k_star, "at_kappa": at_kappa}}
 
 
 def local_segregation_velocity(rates: dict) -> list[dict]:
@@ -1830,6 +1878,23 @@ def format_segregation_reference(r: dict) -> str:
                      f"the steady profile's Ps_mid and D_self {a['t_half']:.4g} "
                      f"({100 * a['err_t_half']:+.1f} %), with the transient's rates "
                      f"{b['t_half']:.4g} ({100 * b['err_t_half']:+.1f} %)")
+        asy = q.get("asymmetric")
+        if asy:
+            lines.append("  asymmetric flux with 1 / p (kappa: steady Ps_mid / transient Ps_mid, "
+                         "D_r / D_self): " + "; ".join(
+                             f"{r['kappa']:.2f}: {r['Ps_mid_steady']:.3g} / "
+                             f"{r['Ps_mid_transient']:.3g}, {r['D_r_over_D_self']:.2f}"
+                             for r in asy["scan"]))
+            ak = asy["at_kappa"]
+            if ak:
+                lines.append(f"  consistent at kappa {ak['kappa']:.3f}: Ps_mid {ak['Ps_mid_steady']:.4g}"
+                             f" (steady rms {ak['rms_steady']:.4f}), D_r "
+                             f"{ak['transient']['D_r']:.4g} = "
+                             f"{ak['transient']['D_r_over_D_self']:.3g} x D_self; with D_self the "
+                             f"bulk half-time {ak['prediction']['t_half']:.4g} "
+                             f"({100 * ak['prediction']['err_t_half']:+.1f} %), with that D_r "
+                             f"{ak['prediction_fitted_D_r']['t_half']:.4g} "
+                             f"({100 * ak['prediction_fitted_D_r']['err_t_half']:+.1f} %)")
     if "Ps_matching_half_time" in r:
         lines.append(f"Ps that gives the particles' half-time (D transient): "
                      f"{r['Ps_matching_half_time']:.4g}")

@@ -86,8 +86,8 @@ def segregation_layer(Ps: float, D: float, h: float, phi0: float = 0.5, t_end: f
     scaled height zeta = z / h (arrays in, positive arrays out) multiplying S = Ps D / h and D
     at each cell face: S(z) = (Ps D / h) S_shape(z / h), D(z) = D D_shape(z / h) (e.g. a
     segregation velocity that grows as the overburden pressure falls, measured with
-    :func:`granflow.coarse.segregation_flux.level_fluxes`).  Symmetric flux only; the steady
-    state is then exact too (logit phi falls by Ps S_shape / D_shape per unit zeta).
+    :func:`granflow.coarse.segregation_flux.level_fluxes`).  Either flux; the steady
+    state is then exact too (:func:`steady_profile_shaped`).
     """
     for name, v, lo in (("D", D, 0.0), ("h", h, 0.0), ("t_end", t_end, 0.0)):
         if not (math.isfinite(v) and v > lo):
@@ -101,9 +101,6 @@ def segregation_layer(Ps: float, D: float, h: float, phi0: float = 0.5, t_end: f
     if n < 8:
         raise ValueError(f"n = {n} is out of range: allowed >= 8")
     shaped = S_shape is not None or D_shape is not None
-    if shaped and flux != "symmetric":
-        raise ValueError(f"S_shape / D_shape with flux = {flux!r}: allowed only with the "
-                         "symmetric flux")
     s_face, d_face = _face_shapes(S_shape, D_shape, n)
     zeta = (np.arange(n) + 0.5) / n
     phi_init = np.full(n, phi0) if phi_initial is None else np.asarray(phi_initial, float)
@@ -113,7 +110,8 @@ def segregation_layer(Ps: float, D: float, h: float, phi0: float = 0.5, t_end: f
     phi = _evolve(Ps, D, h, phi_init, times, flux, kappa, rtol=rtol, atol=atol,
                   s_face=s_face, d_face=d_face)
     s = np.array([indicator(p, zeta, h, phi0) for p in phi])
-    steady = (steady_profile_shaped(Ps, phi0, n, S_shape, D_shape) if shaped else
+    steady = (steady_profile_shaped(Ps, phi0, n, S_shape, D_shape, flux=flux, kappa=kappa)
+              if shaped else
               steady_profile(Ps, phi0, n, flux=flux, kappa=kappa))
     s_inf = float(indicator(steady, zeta, h, phi0))
     s_start = float(s[0])
@@ -193,8 +191,8 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
     would otherwise be frozen into the model and bias the rates (S by up to 12 % at a noise of
     0.03 per level without them).  The parameters
     are fitted in log space (both stay positive): Ps = S h / D_r and the time scale h^2 / D_r.
-    ``S_shape``, ``D_shape``: depth dependence of the rates as in :func:`segregation_layer`
-    (symmetric flux only); S and D_r are then the rates where the shapes are 1.
+    ``S_shape``, ``D_shape``: depth dependence of the rates as in :func:`segregation_layer`;
+    S and D_r are then the rates where the shapes are 1.
 
     Unlike the flux regression (:func:`granflow.coarse.segregation_flux.fit_segregation_flux`)
     the noise of the measured profile enters only as the residual, not as a regressor (no
@@ -227,9 +225,8 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
     sel = (z >= lo) & (z <= hi)
     if sel.sum() < 3:
         raise ValueError(f"z_range = [{lo:g}, {hi:g}] holds {int(sel.sum())} levels: need >= 3")
-    if (S_shape is not None or D_shape is not None) and flux != "symmetric":
-        raise ValueError(f"S_shape / D_shape with flux = {flux!r}: allowed only with the "
-                         "symmetric flux")
+    if flux not in FLUXES:
+        raise ValueError(f"flux = {flux!r} is unknown: allowed {list(FLUXES)}")
     s_face, d_face = _face_shapes(S_shape, D_shape, n)
     zeta_c = (np.arange(n) + 0.5) / n
     init = _smooth_reflecting(np.interp(zeta_c * h, z, phi[0]), init_smoothing * n / h)
@@ -302,13 +299,20 @@ def _face_shapes(S_shape, D_shape, n):
     return out
 
 
-def steady_profile_shaped(Ps: float, phi0: float, n: int, S_shape=None, D_shape=None):
-    """Cell averages of the steady no-flux profile of the symmetric flux with depth-dependent
-    rates (:func:`segregation_layer`'s ``S_shape``, ``D_shape``): d logit(phi)/dzeta =
-    -Ps S_shape / D_shape, the constant of integration set by the mean phi0 (bisection);
-    cells of n sub-points each (trapezoidal average).  With both shapes 1 it is T-eq. (28)."""
+def steady_profile_shaped(Ps: float, phi0: float, n: int, S_shape=None, D_shape=None, *,
+                          flux: str = "symmetric", kappa: float = 0.0):
+    """Cell averages of the steady no-flux profile with depth-dependent rates
+    (:func:`segregation_layer`'s ``S_shape``, ``D_shape``): for the symmetric flux
+    d logit(phi)/dzeta = -Ps S_shape / D_shape, integrated exactly; for the asymmetric one
+    (q = A phi (1 - phi) (1 - kappa phi)) d logit(phi)/dzeta = -A Ps S_shape / D_shape
+    (1 - kappa phi), integrated by ``solve_ivp`` (rtol 1e-10).  The constant of integration is
+    set by the mean phi0 (bisection); cells of 32 sub-points each.  With both shapes 1 it is
+    T-eq. (28) (symmetric) or :func:`steady_profile`'s asymmetric profile."""
     from scipy.optimize import brentq
     from scipy.special import expit
+
+    if flux not in FLUXES:
+        raise ValueError(f"flux = {flux!r} is unknown: allowed {list(FLUXES)}")
 
     m = 32
     zeta = (np.arange(n * m) + 0.5) / (n * m)
@@ -319,11 +323,20 @@ def steady_profile_shaped(Ps: float, phi0: float, n: int, S_shape=None, D_shape=
     G = np.concatenate(([0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(grid))))
     Gz = np.interp(zeta, grid, G)
 
-    def mean_minus(c):
-        return float(np.mean(expit(c - Gz))) - phi0
+    if flux == "symmetric":
+        def profile(c):
+            return expit(c - Gz)
+    else:
+        A = asymmetric_flux_amplitude(kappa)
 
-    c = brentq(mean_minus, -50.0 - abs(Gz).max(), 50.0 + abs(Gz).max(), xtol=1e-13)
-    return expit(c - Gz).reshape(n, m).mean(axis=1)
+        def profile(c):
+            sol = solve_ivp(lambda x, u: -A * np.interp(x, grid, g) * (1.0 - kappa * expit(u)),
+                            (0.0, 1.0), [c], t_eval=zeta, rtol=1e-10, atol=1e-12)
+            return expit(sol.y[0])
+
+    span = 50.0 + abs(G).max() * (1.0 if flux == "symmetric" else A)
+    c = brentq(lambda c: float(np.mean(profile(c))) - phi0, -span, span, xtol=1e-13)
+    return profile(c).reshape(n, m).mean(axis=1)
 
 
 def _evolve(Ps, D, h, init, times, flux, kappa, *, rtol, atol, s_face=None, d_face=None):
