@@ -339,5 +339,6 @@ def test_inverse_pressure_shape_of_a_hydrostatic_layer(tmp_path):
     assert shape(0.5) == pytest.approx(1.0, rel=1e-6)
     assert shape(0.25) == pytest.approx(2.0 / 3.0, rel=1e-6)
     assert shape(0.99) == pytest.approx(10.0, rel=1e-6)     # capped: p(0.99 h) = 0.2 < 1
-    with pytest.raises(ValueError, match="p_min"):
-        inverse_pressure_shape(tmp_path / "profiles.nc", base, h, p_min=50.0)
+    for bad in (50.0, 0.0, -1.0):
+        with pytest.raises(ValueError, match="p_min"):
+            inverse_pressure_shape(tmp_path / "profiles.nc", base, h, p_min=bad)

@@ -1068,8 +1068,9 @@ def transient_windows(m: dict, tracer_dir, *, n_windows: int = 8, every: float =
       its own start (:func:`granflow.continuum.segregation.fit_segregation_transient`; its
       ``identified`` flag says whether the window pins them);
     * ``Ps_profile``: the T-eq. (28) Ps nearest the window's last profile
-      (:func:`profile_peclet`): the profile's sharpness, which a constant-rate T-eq. (27)
-      takes monotonically from the start's towards the steady Ps.
+      (:func:`profile_peclet`): the profile's sharpness in T-eq. (28)'s terms (measured
+      2026-12-04 at the paper's set-up: 3.0 rising to 6.8, the steady value, with no
+      overshoot).
 
     Constant rates would give one S and D_r in every window."""
     from .segregation import fit_segregation_transient
@@ -1114,6 +1115,8 @@ def inverse_pressure_shape(profiles_nc, base: float, h: float, *, p_min: float =
     normalised to 1 at mid-depth, capped where the overburden falls below ``p_min`` (the top
     layer of particles; the result hardly depends on it, the top being pure large there).
     Returns (shape, p_mid)."""
+    if not (math.isfinite(p_min) and p_min > 0):
+        raise ValueError(f"p_min = {p_min!r} is out of range: allowed (0, inf)")
     with xr.open_dataset(profiles_nc) as ds:
         z = ds["z"].values - base
         szz = ds["stress_zz"].values
