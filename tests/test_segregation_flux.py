@@ -342,3 +342,24 @@ def test_inverse_pressure_shape_of_a_hydrostatic_layer(tmp_path):
     for bad in (50.0, 0.0, -1.0):
         with pytest.raises(ValueError, match="p_min"):
             inverse_pressure_shape(tmp_path / "profiles.nc", base, h, p_min=bad)
+
+
+def test_transient_fit_r2_change_sees_a_window_that_does_not_evolve():
+    """A steady profile sampled 20 times with noise 0.01: r2 (against phi's total variance,
+    which holds the profile's shape) is above 0.99 although nothing evolves, r2_change
+    (against the change since the start) is not above 0.6; on an exact transient both are
+    above 0.999."""
+    from granflow.fitting.segregation import phi_teq28
+
+    h = 20.0
+    z = np.arange(0.25, h, 0.25)
+    rng = np.random.default_rng(11)
+    t = np.arange(20.0) * 5.0
+    phi = phi_teq28(z / h, 6.0, 0.5)[None, :] + rng.normal(0.0, 0.01, (t.size, z.size))
+    f = fit_segregation_transient(t, z, phi, h=h, phi0=0.5, z_range=(1.0, h - 1.0))
+    assert f["r2"] > 0.99 and f["r2_change"] <= 0.6, (f["r2"], f["r2_change"])
+    res = segregation_layer(Ps=6.0, D=0.02, h=h, t_end=300.0, n=100, n_out=16)
+    zc = res.z.values
+    g = fit_segregation_transient(res.t.values, zc, res.phi.values, h=h, phi0=0.5, n=100,
+                                  init_smoothing=0.0, init_modes=0)
+    assert g["r2"] > 0.999 and g["r2_change"] > 0.999, (g["r2"], g["r2_change"])

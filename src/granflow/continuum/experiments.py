@@ -1102,7 +1102,7 @@ def transient_windows(m: dict, tracer_dir, *, n_windows: int = 8, every: float =
                      "D": D["D"], "D_stderr": D["D_stderr"], "D_small": D["D_small"],
                      "D_large": D["D_large"],
                      "fit": {k: fit[k] for k in ("S", "S_stderr", "D_r", "D_r_stderr", "Ps",
-                                                 "Ps_stderr", "r2", "identified",
+                                                 "Ps_stderr", "r2", "r2_change", "identified",
                                                  "unidentified")},
                      "Ps_profile": pe["Ps"], "Ps_profile_rms": pe["rms"]})
     return {"windows": rows, "h": h, "t0": tp["t0"], "every": every, "average": average,
@@ -1202,7 +1202,8 @@ def pressure_scaled_segregation(m: dict, run_dir, *, D: float, z_bulk: float = 4
                                       z_range=(z_bulk, h - 1.0), S_shape=shape, flux=flux,
                                       kappa=kappa)
         out = {k: f[k] for k in ("S", "S_stderr", "D_r", "D_r_stderr", "Ps", "Ps_stderr", "r2",
-                                 "rms", "identified", "unidentified", "t_from", "t_to")}
+                                 "r2_change", "rms", "identified", "unidentified", "t_from",
+                                 "t_to")}
         out.update(A=f["S"] * p_mid, D_r_over_D_self=f["D_r"] / D)
         return out
 
@@ -1814,7 +1815,8 @@ def format_segregation_reference(r: dict) -> str:
             f"T-eq. (27) fitted to the transient phi(z, t) (t {f['t_from']:.4g}-{f['t_to']:.4g}, "
             f"{f['n_levels']} levels): S {f['S']:.4g} +- {f['S_stderr']:.2g}, D_r {f['D_r']:.4g} "
             f"+- {f['D_r_stderr']:.2g}, Ps = S h / D_r {f['Ps']:.4g} +- {f['Ps_stderr']:.2g} "
-            f"(r2 {f['r2']:.3f}, rms {f['rms']:.3g}); D_r / D_self "
+            f"(r2 {f['r2']:.3f}, of the change {f['r2_change']:.3f}, rms {f['rms']:.3g}); "
+            f"D_r / D_self "
             f"{tr_['D_r_over_D_self']:.3g}, S / (Ps D / h) {tr_['S_over_model_S']:.3g}, "
             f"Ps / steady {tr_['Ps_transient_over_steady']:.3g}; its half-time "
             f"{tr_['model']['t_half']:.4g} ({100 * tr_['model']['err_t_half']:+.1f} %)")
@@ -1858,12 +1860,14 @@ def format_segregation_reference(r: dict) -> str:
             f"{p['z_from']:.0f}-{p['z_to']:.0f}: {p['D']:.4f}" for p in tr_["D_profile"]))
         if "windows" in tr_:
             lines.append(f"{'t window':>13} {'s':>7} {'u_mean':>7} {'D_self':>7} {'S':>8} "
-                         f"{'D_r':>8} {'Ps fit':>7} {'r2':>5} {'Ps of profile':>13}")
+                         f"{'D_r':>8} {'Ps fit':>7} {'r2':>5} {'r2 chg':>6} "
+                         f"{'Ps of profile':>13}")
             for w in tr_["windows"]["windows"]:
                 f_ = w["fit"]
                 lines.append(f"{w['t_from']:6.0f}-{w['t_to']:<6.0f} {w['s']:7.4f} "
                              f"{w['u_mean']:7.3f} {w['D']:7.4f} {f_['S']:8.5f} {f_['D_r']:8.5f} "
-                             f"{f_['Ps']:7.3g} {f_['r2']:5.2f} {w['Ps_profile']:13.3g}"
+                             f"{f_['Ps']:7.3g} {f_['r2']:5.2f} {f_['r2_change']:6.2f} "
+                             f"{w['Ps_profile']:13.3g}"
                              + ("" if f_["identified"] else
                                 " (unidentified: " + ", ".join(f_["unidentified"]) + ")"))
     if "pressure_scaled" in r:
@@ -1876,7 +1880,8 @@ def format_segregation_reference(r: dict) -> str:
                      f"{tr2['t_to']:.4g}): S_mid {tr2['S']:.4g} +- {tr2['S_stderr']:.2g} (A = S p "
                      f"{tr2['A']:.3g}), D_r {tr2['D_r']:.4g} +- {tr2['D_r_stderr']:.2g} "
                      f"({tr2['D_r_over_D_self']:.3g} x D_self), Ps_mid {tr2['Ps']:.4g} "
-                     f"({tr2['Ps_over_steady']:.3g} x the steady profile's; r2 {tr2['r2']:.3f})")
+                     f"({tr2['Ps_over_steady']:.3g} x the steady profile's; r2 {tr2['r2']:.3f}, "
+                     f"of the change {tr2['r2_change']:.3f})")
         lines.append(f"  bulk half-time: particles {q['t_half_particles']:.4g}; 1 / p model with "
                      f"the steady profile's Ps_mid and D_self {a['t_half']:.4g} "
                      f"({100 * a['err_t_half']:+.1f} %), with the transient's rates "

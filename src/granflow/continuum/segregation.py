@@ -199,7 +199,9 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
     attenuation of D_r by a noisy dphi/dz).  Stderrs from the Jacobian with the residual
     variance, assuming independent residuals: levels closer than the coarse-graining width and
     consecutive times are correlated, so these are lower bounds.  Returns S, D_r, Ps, their
-    stderrs, the rms residual, the explained variance r2 of phi over the compared levels and
+    stderrs, the rms residual, the explained variance r2 of phi over the compared levels,
+    ``r2_change`` (the explained share of phi's change since ``t[0]``: r2 also counts the
+    profile's spatial structure, which a nearly steady window explains by standing still) and
     ``identified`` (False, with the rates in ``unidentified``, where a rate's stderr is not
     finite or above half of itself: e.g. an interior that hardly changes over the window).
     """
@@ -263,12 +265,17 @@ def fit_segregation_transient(t, z, phi, *, h: float, phi0: float, z_range=None,
                               - 2.0 * corr * se_log[0] * se_log[1], 0.0))
     total = float(np.sum((obs - obs.mean()) ** 2))
     r2 = 1.0 - float(r @ r) / total if total > 0 else math.nan
+    # the same against the change since the start: r2 counts the profile's spatial structure,
+    # which a window with little evolution explains by standing still
+    change = float(np.sum((obs - phi[0, sel][None, :]) ** 2))
+    r2_change = 1.0 - float(r @ r) / change if change > 0 else math.nan
     # a rate the data do not pin: no finite stderr, or one above half of itself
     unpinned = [name for name, se in (("S", se_log[0]), ("D_r", se_log[1]))
                 if not (math.isfinite(se) and se < 0.5)]
     return {"S": S, "S_stderr": S * float(se_log[0]), "D_r": D, "D_r_stderr": D * float(se_log[1]),
             "Ps": S * h / D, "Ps_stderr": S * h / D * se_log_ps,
             "corr_logS_logD": corr, "rms": math.sqrt(float(r @ r) / r.size), "r2": r2,
+            "r2_change": r2_change,
             "n_times": int(t.size - 1), "n_levels": int(sel.sum()), "t_from": float(t[0]),
             "t_to": float(t[-1]), "z_range": [lo, hi], "flux": flux, "kappa": kappa,
             "init_modes": fit.x[2:].tolist(), "success": bool(fit.success),
