@@ -292,15 +292,24 @@ def test_paper_segregation_transient_rates_are_constant(segregation_comparison, 
     assert abs(b[rate] / a[rate] - 1.0) <= TOL_RATES, (a[rate], b[rate])
 
 
+def _pressure_scaled(comparison, request=None, key=None) -> dict:
+    """The comparison's 1 / p results (skip where the run has no steady window); ``key``: the
+    KNOWN entry that marks the calling check as a strict xfail."""
+    if key is not None and key in KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
+    q = comparison.get("pressure_scaled")
+    if q is None:
+        pytest.skip("the run has no steady window (pressure_scaled needs its steady profile)")
+    return q
+
+
 def test_paper_segregation_steady_profile_follows_inverse_pressure(segregation_comparison):
     """The run's steady profile above the basal layers (z >= 4) is fitted better by the exact
     steady state of T-eq. (27) with S ~ 1 / p than by T-eq. (28)'s constant rates: its rms at
     most 0.6x the constant-rate fit's.  Measured 2026-12-04 (run steady at t = 1221): 0.033
     against 0.070 (Ps_mid 5.88; constant 6.65) -- the top is pure large above z ~ 18, which a
     constant S cannot make while the lower half stays broad."""
-    q = segregation_comparison.get("pressure_scaled")
-    if q is None:
-        pytest.skip("the run has no steady window (pressure_scaled needs its steady profile)")
+    q = _pressure_scaled(segregation_comparison)
     assert q["steady"]["rms"] <= 0.6 * q["steady"]["rms_constant"], q["steady"]
 
 
@@ -309,12 +318,7 @@ def test_paper_segregation_pressure_scaled_rates(segregation_comparison, request
     """With S ~ 1 / p, T-eq. (27) fitted to the bulk transient (z >= 4) gives a remixing
     diffusivity D_r within 25 % of the self-diffusivity and Ps_mid within 25 % of the steady
     profile's (with constant rates they were 0.11x and 12.9x)."""
-    key = f"paper_seg_pressure_rates:{rate}"
-    if key in KNOWN:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
-    q = segregation_comparison.get("pressure_scaled")
-    if q is None:
-        pytest.skip("the run has no steady window")
+    q = _pressure_scaled(segregation_comparison, request, f"paper_seg_pressure_rates:{rate}")
     tr = q["transient"]
     assert tr["identified"], tr["unidentified"]
     ratio = {"D_r": tr["D_r_over_D_self"], "Ps": tr["Ps_over_steady"]}[rate]
@@ -329,12 +333,7 @@ def test_paper_segregation_pressure_scaled_half_time(segregation_comparison, req
     D the self-diffusivity (closures of the steady state), or the rates fitted to the
     transient; or with the asymmetric flux at the kappa where transient and steady profile
     agree on Ps_mid, with D the self-diffusivity."""
-    key = f"paper_seg_pressure:{variant}"
-    if key in KNOWN:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
-    q = segregation_comparison.get("pressure_scaled")
-    if q is None:
-        pytest.skip("the run has no steady window")
+    q = _pressure_scaled(segregation_comparison, request, f"paper_seg_pressure:{variant}")
     if variant == "asymmetric_consistent_D_self":
         assert q["asymmetric"]["at_kappa"] is not None, q["asymmetric"]["scan"]
         r = q["asymmetric"]["at_kappa"]["prediction"]
@@ -353,10 +352,7 @@ def test_paper_segregation_one_model_has_the_transient_and_the_steady_state(
     Ps_mid 6.40 (steady rms 0.029), D_r 0.0390 (1.61 x D_self), r2 0.957, half-time 295
     against 249 (+18.6 %).  Seed 2 (not this fixture's run) gives kappa 0.661, D_r 1.56x and
     +27.5 %: the 20 % holds for seed 1 only."""
-    q = segregation_comparison.get("pressure_scaled")
-    if q is None:
-        pytest.skip("the run has no steady window")
-    ak = q["asymmetric"]["at_kappa"]
+    ak = _pressure_scaled(segregation_comparison)["asymmetric"]["at_kappa"]
     assert ak is not None and 0.0 < ak["kappa"] < 1.0, q["asymmetric"]["scan"]
     assert ak["rms_steady"] <= 0.035 and ak["transient"]["r2"] >= 0.9, ak
     assert abs(ak["prediction_fitted_D_r"]["err_t_half"]) <= ex.TOL_HALF_TIME, ak
@@ -366,12 +362,8 @@ def test_paper_segregation_consistent_remixing_is_the_self_diffusivity(segregati
                                                                      request):
     """In that one model, the remixing diffusivity D_r within 25 % of the tracers'
     self-diffusivity (the closure the prediction uses)."""
-    key = "paper_seg_pressure_rates:D_r_consistent"
-    if key in KNOWN:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[key]))
-    q = segregation_comparison.get("pressure_scaled")
-    if q is None:
-        pytest.skip("the run has no steady window")
+    q = _pressure_scaled(segregation_comparison, request,
+                         "paper_seg_pressure_rates:D_r_consistent")
     ak = q["asymmetric"]["at_kappa"]
     assert ak is not None
     assert abs(ak["transient"]["D_r_over_D_self"] - 1.0) <= TOL_RATES, ak["transient"]

@@ -1872,7 +1872,8 @@ def format_segregation_reference(r: dict) -> str:
                                 " (unidentified: " + ", ".join(f_["unidentified"]) + ")"))
     if "pressure_scaled" in r:
         q = r["pressure_scaled"]
-        st_, tr2, a, b = q["steady"], q["transient"], q["prediction"], q["prediction_transient_rates"]
+        st_, tr2 = q["steady"], q["transient"]
+        a, b = q["prediction"], q["prediction_transient_rates"]
         lines.append(f"S ~ 1 / p (S(z) = S_mid p_mid / p(z), p_mid {q['p_mid']:.3g}), bulk z >= "
                      f"{q['z_bulk']:g}: steady profile Ps_mid {st_['Ps_mid']:.4g} (rms "
                      f"{st_['rms']:.4f}; constant-rate T-eq. (28) Ps {st_['Ps_constant']:.4g}, rms "
@@ -1895,8 +1896,8 @@ def format_segregation_reference(r: dict) -> str:
                              for r in asy["scan"]))
             ak = asy["at_kappa"]
             if ak:
-                lines.append(f"  consistent at kappa {ak['kappa']:.3f}: Ps_mid {ak['Ps_mid_steady']:.4g}"
-                             f" (steady rms {ak['rms_steady']:.4f}), D_r "
+                lines.append(f"  consistent at kappa {ak['kappa']:.3f}: Ps_mid "
+                             f"{ak['Ps_mid_steady']:.4g} (steady rms {ak['rms_steady']:.4f}), D_r "
                              f"{ak['transient']['D_r']:.4g} = "
                              f"{ak['transient']['D_r_over_D_self']:.3g} x D_self; with D_self the "
                              f"bulk half-time {ak['prediction']['t_half']:.4g} "
