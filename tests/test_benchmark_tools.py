@@ -637,3 +637,61 @@ def test_particle_order_curves_are_permutations_that_step_to_grid_neighbours():
     assert np.all(np.diff(col) >= 0)
     with pytest.raises(ValueError):
         bo.order(pos, 16.0, 8.0, "random")
+
+
+def _approach_profiles(path, t_mid, Ps_of_t, depth=24.0):
+    """A profiles.nc with one window per time: a hydrostatic sigma_zz over [0, depth] and the
+    small fraction of T-eq. (28) at Ps_of_t (phi0 = 0.5, total volume fraction 0.6)."""
+    import xarray as xr
+
+    from granflow.fitting.segregation import phi_teq28
+
+    z = np.arange(-2.0, depth + 4.0, 0.05)
+    zeta = np.clip(z / depth, 0.0, 1.0)
+    inside = (z >= 0) & (z <= depth)
+    nu, szz = [], []
+    for Ps in Ps_of_t:
+        phi = phi_teq28(zeta, Ps, 0.5)
+        nu.append(np.stack([np.where(inside, 0.6 * phi, 0.0), np.where(inside, 0.6 * (1 - phi), 0.0)]))
+        szz.append(np.where(inside, 0.6 * (depth - z), np.where(z < 0, 0.6 * depth, 0.0)))
+    n = len(t_mid)
+    ds = xr.Dataset({"species_volume_fraction_window": (("time_window", "species", "z"), np.array(nu)),
+                     "stress_zz_window": (("time_window", "z"), np.array(szz)),
+                     "window_n_snapshots": ("time_window", np.full(n, 100)),
+                     "window_time_start": ("time_window", np.asarray(t_mid) - 25.0),
+                     "window_mean_time": ("time_window", np.asarray(t_mid, dtype=float))},
+                    coords={"z": z, "time_window": np.arange(n)},
+                    attrs={"cg_small_species": 0, "cg_window_length": 50.0})
+    ds.to_netcdf(path / "profiles.nc")
+
+
+def test_segregation_approach_recovers_window_peclets_and_the_plateau_they_approach(tmp_path):
+    """benchmarks/segregation_approach.py on windows of T-eq. (28) profiles whose Ps relaxes
+    exponentially to 5 (from above, as after a segregated start; from below, as after a mixed
+    one): each window's Ps recovered to 1e-4, the side of the approach named, the last windows'
+    mean a bound on the plateau from that side, and the relaxation fit's Ps_inf within 2 of its
+    stderrs of 5 (and within 2 %)."""
+    sa = _load("segregation_approach")
+    t = 25.0 + 50.0 * np.arange(20)
+    wiggle = 0.01 * np.sin(1.7 * np.arange(20))  # the fit needs residuals to weigh
+    for a, side in ((4.0, -1.0), (-2.5, 1.0)):
+        Ps = 5.0 + a * np.exp(-t / 300.0) + wiggle
+        run = tmp_path / f"a{a}"
+        run.mkdir()
+        _approach_profiles(run, t, Ps)
+        w = sa.window_peclets(run)
+        assert w["window"] == 50.0 and w["Ps"].size == 20
+        np.testing.assert_allclose(w["t_mid"], t)
+        np.testing.assert_allclose(w["Ps"], Ps, rtol=1e-4)
+        np.testing.assert_allclose(w["depth"], 24.0, rtol=1e-3)
+        res = sa.approach(w["t_mid"], w["Ps"], t_from=0.0)
+        assert res["side"] == side
+        assert (res["Ps_last"] - 5.0) * side < 0  # a bound from the named side
+        assert res["identified"]
+        assert abs(res["Ps_inf"] - 5.0) < max(2 * res["Ps_inf_stderr"], 0.1)
+        assert res["Ps_inf"] == pytest.approx(5.0, rel=0.02)
+        assert res["tau"] == pytest.approx(300.0, rel=0.25)
+    with pytest.raises(ValueError, match="windows after t_from"):
+        sa.approach(t[:5], Ps[:5])
+    with pytest.raises(SystemExit):
+        sa.main([str(run), "--last", "1"])

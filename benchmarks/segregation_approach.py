@@ -1,0 +1,158 @@
+"""Not a timing: how a bidisperse run's Peclet number approaches its steady value, window by
+window, and what that says about the steady Ps when the run ended before its segregated state
+was shown steady (issue 14: the segregation reference's k needs 1/sigma = 1.1 and 1.25, whose
+runs outlast a session).
+
+For every full coarse-graining window of the run's ``profiles.nc`` (``cg_window`` long) Ps of
+T-eq. (28) is fitted to that window's small-particle fraction phi(z) on the depth scaled over
+that window's [b, s] of Eq. (42), exactly as :func:`granflow.campaign.collect.segregation_fit`
+fits the mean profile of the last windows.  The series Ps(t) then says
+
+* from which side the run approaches its steady Ps: a mixed start from below (Ps rises), a
+  segregated start from above (Ps falls, the sharp interface broadening), so the last
+  windows' Ps is a one-sided bound on the steady value (what the campaign fit uses for a
+  ``drifting`` run, :func:`granflow.fitting.segregation.fit_Ps_law`'s ``one_sided``);
+* and, as an *extrapolation* (not a measurement), the plateau of an exponential relaxation
+  Ps(t) = Ps_inf + a exp(-(t - t_1) / tau) fitted to the windows after ``--t-from``
+  (:func:`granflow.steady.segregation.relaxation_projection`, the steady detector's own
+  projection, covariance inflated by the residuals' statistical inefficiency):
+  ``Ps_inf +- stderr``, with the change still to come and its one-sided 95 % bound.
+
+    .venv/bin/python benchmarks/segregation_approach.py RUN_DIR [--t-from 100] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5) -> dict:
+    """Ps of T-eq. (28) per coarse-graining window of ``run_dir/profiles.nc``: arrays
+    ``t_start``, ``t_mid`` (the windows' mean snapshot time), ``Ps``, ``Ps_stderr`` (the fit's), ``depth`` (s - b) over the
+    windows holding at least ``min_fill`` of the fullest window's snapshots; a window whose
+    fit fails gets NaN."""
+    import xarray as xr
+
+    from granflow.coarse.derived import flow_height
+    from granflow.fitting import fit_Ps
+
+    with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
+        ds = src.load()
+    small = int(ds.attrs.get("cg_small_species", 0))
+    z = np.asarray(ds["z"].values, dtype=float)
+    nu = np.asarray(ds["species_volume_fraction_window"].values, dtype=float)  # (w, s, z)
+    szz = np.asarray(ds["stress_zz_window"].values, dtype=float)               # (w, z)
+    counts = np.asarray(ds["window_n_snapshots"].values, dtype=float)
+    starts = np.asarray(ds["window_time_start"].values, dtype=float)
+    mean_t = (np.asarray(ds["window_mean_time"].values, dtype=float)
+              if "window_mean_time" in ds else None)
+    width = float(ds.attrs.get("cg_window_length", math.nan))
+    width = width if width > 0 else math.nan
+    use = counts >= min_fill * counts.max()
+    out = {k: [] for k in ("t_start", "t_mid", "Ps", "Ps_stderr", "depth")}
+    for w in np.nonzero(use)[0]:
+        tot = nu[w].sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            phi = np.where(tot > 0, nu[w, small] / np.where(tot > 0, tot, 1.0), np.nan)
+        b, s, _, _ = flow_height(z, szz[w])
+        Ps = se = depth = math.nan
+        if np.isfinite(b) and np.isfinite(s):
+            inside = (z >= b) & (z <= s)
+            fit = fit_Ps((z[inside] - b) / (s - b), phi[inside], sigma=sigma)
+            if fit.ok:
+                Ps, se, depth = fit.params["Ps"], fit.stderr["Ps"], s - b
+        out["t_start"].append(float(starts[w]))
+        out["t_mid"].append(float(mean_t[w]) if mean_t is not None
+                            else float(starts[w]) + 0.5 * width)
+        out["Ps"].append(Ps)
+        out["Ps_stderr"].append(se)
+        out["depth"].append(depth)
+    return {k: np.asarray(v, dtype=float) for k, v in out.items()} | {"window": width}
+
+
+def approach(t, Ps, *, t_from: float = -math.inf, last: int = 4) -> dict:
+    """What the series Ps(t) says about its steady value.
+
+    ``side``: +1 when Ps rose over the series (the first ``last`` windows after ``t_from``
+    against the last ``last``: a lower bound, as after a mixed start), -1 when it fell (an
+    upper bound, as after a segregated start); ``Ps_last``: mean of the last ``last`` windows,
+    ``Ps_last_sem`` their standard error (spread / sqrt(n)).  ``Ps_inf``, ``Ps_inf_stderr``,
+    ``tau``, ``remaining``, ``remaining_bound``, ``identified``: the exponential relaxation
+    fitted to the windows after ``t_from`` (an extrapolation; NaN where no relaxation is
+    identified)."""
+    from granflow.steady.segregation import SEGREGATION_ALPHA, relaxation_projection
+    from scipy import stats
+
+    t, Ps = np.asarray(t, dtype=float), np.asarray(Ps, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(Ps) & (t >= t_from)
+    t, Ps = t[ok], Ps[ok]
+    if t.size < max(2 * last, 6):
+        raise ValueError(f"{t.size} windows after t_from = {t_from:g}: need at least "
+                         f"{max(2 * last, 6)}")
+    head, tail = Ps[:last], Ps[-last:]
+    side = 1.0 if tail.mean() > head.mean() else -1.0
+    out = {"side": side, "Ps_first": float(head.mean()), "Ps_last": float(tail.mean()),
+           "Ps_last_sem": float(tail.std(ddof=1) / math.sqrt(tail.size)),
+           "t_last_from": float(t[-last]), "t_end": float(t[-1]), "n_windows": int(t.size)}
+    rx = relaxation_projection(t, Ps)
+    z = float(stats.norm.ppf(1.0 - SEGREGATION_ALPHA))
+    if rx.identified:
+        se = (rx.bound - abs(rx.remaining)) / z
+        # Ps_inf = fitted value now + remaining; its stderr is that of the remaining change
+        out.update(Ps_inf=float(rx.s_inf), Ps_inf_stderr=float(se), tau=float(rx.tau),
+                   remaining=float(rx.remaining), remaining_bound=float(rx.bound),
+                   identified=True, how=rx.how)
+    else:
+        out.update(Ps_inf=math.nan, Ps_inf_stderr=math.nan, tau=math.nan,
+                   remaining=float(rx.remaining), remaining_bound=float(rx.bound),
+                   identified=False, how=rx.how)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("run_dir")
+    ap.add_argument("--t-from", type=float, default=100.0,
+                    help="windows starting before this are left out of the approach fit")
+    ap.add_argument("--last", type=int, default=4, help="windows of the one-sided bound")
+    ap.add_argument("--json", help="write the series and the approach to this file")
+    args = ap.parse_args(argv)
+    if args.last < 2:
+        ap.error(f"--last = {args.last} is out of range: allowed >= 2")
+    run = Path(args.run_dir)
+    params = {}
+    if (run / "summary.json").exists():
+        params = json.loads((run / "summary.json").read_text()).get("params", {})
+    w = window_peclets(run, params.get("sigma"))
+    print(f"{run}: sigma = {params.get('sigma', '?')}, start "
+          f"{params.get('initial_mixing', 'mixed')}, {w['Ps'].size} windows of {w['window']:g}")
+    print("   t_start   Ps (T-eq. 28)  fit stderr   depth s - b")
+    for a, p, s, d in zip(w["t_start"], w["Ps"], w["Ps_stderr"], w["depth"]):
+        print(f"  {a:8.1f}   {p:12.4f}  {s:10.4f}   {d:10.3f}")
+    res = approach(w["t_mid"], w["Ps"], t_from=args.t_from, last=args.last)
+    kind = "lower" if res["side"] > 0 else "upper"
+    print(f"approach from {'below' if res['side'] > 0 else 'above'}: Ps {res['Ps_first']:.3f} "
+          f"-> {res['Ps_last']:.3f} +- {res['Ps_last_sem']:.3f} over the last {args.last} "
+          f"windows (t >= {res['t_last_from']:g}): a one-sided ({kind}) bound on the steady Ps")
+    if res["identified"]:
+        print(f"extrapolated (relaxation fit, t >= {args.t_from:g}): Ps_inf = "
+              f"{res['Ps_inf']:.3f} +- {res['Ps_inf_stderr']:.3f}, tau = {res['tau']:.4g}; "
+              f"change still to come {res['remaining']:+.3f} (95 % bound {res['remaining_bound']:.3f})")
+    else:
+        print(f"no relaxation identified ({res['how']})")
+    if args.json:
+        Path(args.json).write_text(json.dumps(
+            {"run": str(run), "params": params,
+             "windows": {k: v.tolist() for k, v in w.items() if k != "window"},
+             "window": w["window"], "approach": res}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
