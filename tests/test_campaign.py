@@ -91,12 +91,44 @@ def test_segregated_start_runs_get_their_own_directory_and_parameter():
             assert "initial_mixing" not in G.run_params(cfg, r)
     with pytest.raises(ValueError, match="start~layered is not allowed"):
         G.parse_run_path("segregation/linear/lambda~1/theta~25/H~8/sigma~0.5/start~layered")
+    with pytest.raises(ValueError, match=r"start~profile0 is not allowed.*\(0, 1000\]"):
+        G.parse_run_path("segregation/linear/lambda~1/theta~25/H~8/sigma~0.5/start~profile0")
     with pytest.raises(ValueError, match="start~segregated is not allowed"):
         G.parse_run_path("chute/linear/lambda~1/theta~25/H~8/start~segregated")
     bad = merged("config.yaml")
     bad["campaigns"]["segregation"]["initial_mixing"] = ["layered"]
     with pytest.raises(Exception, match="layered"):
         check_config(bad, SCHEMA)
+
+
+def test_profile_starts_name_their_peclet_number_in_directory_and_parameters():
+    """``initial_mixing: [profile3.5, profile7]`` runs each size ratio twice, started as T-eq.
+    28's profile at Ps 3.5 and 7 (``/start~profile3.5``; run parameters initial_mixing profile,
+    initial_Ps 3.5); the paths read back; a drifting profile run bounds its steady Ps from the
+    side its initial Ps lay on (:func:`granflow.fitting.campaign.approach_side`); a bad Ps
+    is refused by the schema and by the grid, with the allowed range."""
+    from granflow.fitting.campaign import approach_side
+
+    cfg = merged("config.yaml")
+    cfg["campaigns"]["segregation"]["initial_mixing"] = ["profile3.5", "profile7"]
+    check_config(cfg, SCHEMA)
+    runs = G.segregation_points(cfg)
+    assert len(runs) == 2 * len(cfg["campaigns"]["segregation"]["sigma"])
+    for r in runs:
+        assert G.parse_run_path(f"results/x/{r.path}/row.json") == r
+        assert r.path.endswith(f"/start~{r.start}")
+        p = validate_params(G.run_params(cfg, r))
+        assert p["initial_mixing"] == "profile"
+        assert p["initial_Ps"] == {"profile3.5": 3.5, "profile7": 7.0}[r.start]
+    assert G.start_initial_Ps("profile7") == 7.0 and G.start_initial_Ps("segregated") is None
+    # sides: mixed from below, segregated from above, a profile start from its Ps's side
+    assert approach_side("mixed", 5.0) == 1.0 and approach_side("segregated", 5.0) == -1.0
+    assert approach_side("profile7", 5.9) == -1.0 and approach_side("profile3.5", 4.4) == 1.0
+    for bad_start in ("profile0", "profile2000", "profile"):
+        bad = merged("config.yaml")
+        bad["campaigns"]["segregation"]["initial_mixing"] = [bad_start]
+        with pytest.raises(Exception, match=bad_start):
+            check_config(bad, SCHEMA)
 
 
 @pytest.mark.parametrize("names", [("config.yaml",), ("config.yaml", "test-tiny.yaml"),

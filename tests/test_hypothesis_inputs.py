@@ -42,8 +42,8 @@ from hypothesis import strategies as st  # noqa: E402
 
 from granflow.campaign import grid as G  # noqa: E402
 from granflow.campaign.config import check_config, default_schema_path, load_yaml  # noqa: E402
-from granflow.simulate import (MAX_STEPS, PARAMETERS, estimate_run_size, load_params,  # noqa: E402
-                               machine_memory, validate_params)
+from granflow.simulate import (ABSENT_UNLESS_GIVEN, MAX_STEPS, PARAMETERS,  # noqa: E402
+                               estimate_run_size, load_params, machine_memory, validate_params)
 
 REPO = Path(__file__).resolve().parents[1]
 SCHEMA = default_schema_path()
@@ -172,8 +172,8 @@ def test_run_parameters_clear_error_or_valid_run(case):
         return
     _count("run parameters", "accepted")
     # accepted: every value typed and in range, a run that fits this machine
-    for key in PARAMETERS:  # engine is optional: absent means granflow's numba engine
-        assert key in p or key == "engine"
+    for key in PARAMETERS:  # engine and initial_Ps stay absent unless given
+        assert key in p or key in ABSENT_UNLESS_GIVEN
     assert all(isinstance(p[k], (int, float)) and not isinstance(p[k], bool)
                for k in ("theta", "H", "lam", "Lx", "Ly", "t_end", "t_c", "seed"))
     size = estimate_run_size(p)

@@ -86,7 +86,10 @@ PARAMETERS = {
     "sigma": "size ratio d_small/d_large, (0, 1]", "phi0": "small-particle volume fraction, [0, 1]",
     "initial_mixing": ("how a mixture starts: mixed (default: one random insertion order) | "
                        "segregated (small particles below, large above: the steady segregated "
-                       "state approached from above)"),
+                       "state approached from above) | profile (stratified as T-eq. 28's steady "
+                       "profile at initial_Ps: approached from that side)"),
+    "initial_Ps": ("Peclet number of a 'profile' start's T-eq. 28 profile, (0, 1000]; only with "
+                   "initial_mixing = profile (absent otherwise)"),
     "base_layers": "settled base thickness in lambda, [3, 100] (paper 12)",
     "sample_interval": "time between samples (default t_c/2)",
     "checkpoint_every_s": "wall-clock seconds between checkpoints",
@@ -126,7 +129,7 @@ RANGES = {
     "base_t_c": (0.0, 1.0, True, False), "base_e": (0.0, 1.0, True, False),
     "base_mu_c": (0.0, math.inf, False, False), "steps_per_collision": (10.0, 1e6, False, False),
     "skin": (0.0, 10.0, True, False), "sigma": (0.0, 1.0, True, False), "phi0": (0.0, 1.0, False, False),
-    "insertion_growth": (0.0, 10.0, True, False),
+    "insertion_growth": (0.0, 10.0, True, False), "initial_Ps": (0.0, 1e3, True, False),
     "base_layers": (3.0, 100.0, False, False), "sample_interval": (0.0, 1e6, True, False),
     "checkpoint_every_s": (0.0, 1e7, False, False), "averaging_time": (0.0, 1e7, True, False),
     "check_every": (0.0, 1e7, True, False), "min_accelerating_time": (0.0, 1e7, False, False),
@@ -141,6 +144,8 @@ CHOICE_PARAMETERS = ("contact_law", "cg_base_line", "initial_mixing")
 #: parameters that may be null (their default is derived from others)
 OPTIONAL_PARAMETERS = ("sample_interval", "min_accelerating_time", "base_t_c", "base_e", "base_mu_c",
                        "max_overlap")
+#: parameters that stay absent from a run's parameters unless the run file gives them
+ABSENT_UNLESS_GIVEN = ("engine", "initial_Ps")
 #: most time steps a run may take (t_end / dt): 500 times the paper's protocol (2e7 steps)
 MAX_STEPS = 1e10
 
@@ -215,8 +220,15 @@ def validate_params(params: dict, *, check_machine: bool = True) -> dict:
     for key in ("base_t_c", "base_e", "base_mu_c"):
         p.setdefault(key, None)
     for key in PARAMETERS:
-        if key != "engine":
+        # engine and initial_Ps are absent unless given (older runs' parameters, and so their
+        # checkpoints' identity, unchanged)
+        if key not in ABSENT_UNLESS_GIVEN:
             p[key] = _check_value(key, p[key])
+        elif key in p and key != "engine":
+            p[key] = _check_value(key, p[key])
+    if p["initial_mixing"] == "profile" and "initial_Ps" not in p:
+        raise ValueError("initial_mixing = 'profile' needs initial_Ps, the Peclet number of its "
+                         f"T-eq. 28 profile: allowed {_interval('initial_Ps')}")
     if "engine" in p:
         if not isinstance(p["engine"], str) or p["engine"] not in ENGINES:
             raise ValueError(f"engine = {p['engine']!r} is unknown: allowed {list(ENGINES)}")
@@ -429,6 +441,7 @@ def chute_config(p: dict) -> ChuteConfig:
                        steps_per_collision=p["steps_per_collision"], skin=p["skin"],
                        sigma=p["sigma"], phi0=p["phi0"],
                        initial_mixing=p.get("initial_mixing", "mixed"),
+                       initial_Ps=float(p.get("initial_Ps") or 0.0),
                        insertion_growth=p["insertion_growth"])
 
 

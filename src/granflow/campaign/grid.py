@@ -16,7 +16,9 @@ directory and the configured seed, so a campaign without replicates is unchanged
 segregation run started fully segregated (``campaigns.segregation.initial_mixing`` lists
 ``segregated`` beside the default ``mixed``) adds ``/start~segregated`` before any ``/seed~k``:
 it approaches the steady segregated state from above where the mixed start approaches it from
-below (:class:`granflow.engine.chute.ChuteConfig`).  Replicates
+below (:class:`granflow.engine.chute.ChuteConfig`); ``profile<Ps>`` (e.g. ``profile3.5``,
+``/start~profile3.5``) starts stratified as T-eq. 28's steady profile at that Peclet number,
+nearer the steady state than either limit, and approaches it from the side Ps lies on.  Replicates
 share the rough base of their (lambda, box): they measure the scatter of the flow over one
 boundary, the quantity a closure fitted to that base must be given; the base realisation is a
 separate (systematic) question, studied by changing ``base.seed``, or, for the hstop
@@ -38,7 +40,38 @@ from dataclasses import dataclass
 KINDS = ("chute", "segregation", "bracket")
 #: how a segregation run's species start (granflow.engine.chute.INITIAL_MIXINGS; "mixed" is the
 #: default and keeps the plain directory)
-STARTS = ("mixed", "segregated")
+STARTS = ("mixed", "segregated", "profile")
+#: a "profile" start names its T-eq. 28 Peclet number: ``profile<Ps>`` (e.g. ``profile3.5``)
+_PROFILE_RE = re.compile(r"profile([0-9][0-9.e+-]*)")
+
+
+def start_initial_Ps(start: str) -> float | None:
+    """The Peclet number of a ``profile<Ps>`` start, None for "mixed" and "segregated";
+    ValueError for anything else (the allowed names and Ps range)."""
+    if start in ("mixed", "segregated"):
+        return None
+    m = _PROFILE_RE.fullmatch(str(start))
+    ps = None
+    if m is not None:
+        try:
+            ps = float(m.group(1))
+        except ValueError:
+            ps = None
+    if ps is None or not (0.0 < ps <= 1e3):
+        raise ValueError(f"start {start!r} is unknown: allowed 'mixed', 'segregated' or "
+                         "'profile<Ps>' with Ps in (0, 1000] (e.g. 'profile3.5': stratified as "
+                         "T-eq. 28's steady profile at that Peclet number)")
+    return ps
+
+
+def check_start(start: str, kind: str = "segregation") -> str:
+    """``start`` if allowed for a run of ``kind`` (anything but "mixed" only for segregation
+    runs), else ValueError naming the allowed starts."""
+    if start != "mixed" and kind != "segregation":
+        raise ValueError(f"start {start!r} of a {kind} run: allowed 'mixed' only (the other "
+                         "starts are for segregation runs)")
+    start_initial_Ps(start)
+    return start
 
 #: configuration ``species`` keys -> run parameter names (granflow.simulate.PARAMETERS)
 SPECIES_KEYS = ("t_c", "e", "mu_c", "kt_over_kn", "gt_over_gn", "v_ref", "base_t_c", "base_e",
@@ -53,9 +86,9 @@ _NUM = r"[0-9][0-9.e+-]*"
 _RUN_RE = re.compile(
     rf"(?P<kind>chute|segregation|bracket)/(?P<law>[A-Za-z_]+)/lambda~(?P<lam>{_NUM})/"
     rf"theta~(?P<theta>{_NUM})/H~(?P<H>{_NUM})(?:/sigma~(?P<sigma>{_NUM}))?"
-    rf"(?:/start~(?P<start>[a-z]+))?(?:/seed~(?P<rep>[0-9]+))?")
+    rf"(?:/start~(?P<start>[a-z]+(?:{_NUM})?))?(?:/seed~(?P<rep>[0-9]+))?")
 #: regular expression of the ``point`` part of a run directory (for Snakemake wildcard constraints)
-POINT_REGEX = (rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?(/start~[a-z]+)?"
+POINT_REGEX = (rf"lambda~{_NUM}/theta~{_NUM}/H~{_NUM}(/sigma~{_NUM})?(/start~[a-z]+({_NUM})?)?"
                rf"(/seed~[0-9]+)?")
 
 
@@ -102,9 +135,7 @@ def run_path(p: RunPoint) -> str:
     if p.kind == "segregation":
         s += f"/sigma~{format_value(p.sigma)}"
     if p.start != "mixed":
-        if p.kind != "segregation" or p.start not in STARTS:
-            raise ValueError(f"start {p.start!r} of a {p.kind} run: allowed {list(STARTS)} for "
-                             "segregation runs, 'mixed' otherwise")
+        check_start(p.start, p.kind)
         s += f"/start~{p.start}"
     if p.replicate:
         s += f"/seed~{int(p.replicate)}"
@@ -121,9 +152,10 @@ def parse_run_path(path: str) -> RunPoint:
     if g["kind"] == "segregation" and g["sigma"] is None:
         raise ValueError(f"segregation run directory {path!r} lacks sigma~")
     start = g["start"] or "mixed"
-    if start not in STARTS or (start != "mixed" and g["kind"] != "segregation"):
-        raise ValueError(f"run directory {path!r}: start~{start} is not allowed (segregation "
-                         f"runs: {list(STARTS)})")
+    try:
+        check_start(start, g["kind"])
+    except ValueError as exc:
+        raise ValueError(f"run directory {path!r}: start~{start} is not allowed: {exc}") from None
     return RunPoint(g["kind"], g["law"], float(g["lam"]), float(g["theta"]), float(g["H"]),
                     float(g["sigma"]) if g["sigma"] is not None else 1.0,
                     int(g["rep"]) if g["rep"] is not None else 0, start)
@@ -319,7 +351,10 @@ def run_params(config: dict, p: RunPoint) -> dict:
     if p.kind == "segregation":
         params.update(sigma=p.sigma, phi0=float(c.get("phi0", 0.5)))
         if p.start != "mixed":  # absent for the default: older run parameters unchanged
-            params["initial_mixing"] = p.start
+            ps = start_initial_Ps(p.start)
+            params["initial_mixing"] = p.start if ps is None else "profile"
+            if ps is not None:
+                params["initial_Ps"] = ps
     if p.kind == "bracket":
         from .hstop import bisection_protocol
 

@@ -23,7 +23,16 @@ Implements the protocol of Weinhart et al. (2012) §5 (physics.md §3):
   ``"segregated"`` (all small particles inserted first in [0, phi0 I], the large ones above the
   highest small one: the fully segregated limit, from which the steady segregated state is
   approached from above while a mixed start approaches it from below -- the two bracket the
-  steady Ps of T-eq. 28 when a run ends before its segregation is steady).
+  steady Ps of T-eq. 28 when a run ends before its segregation is steady) or ``"profile"``
+  (stratified like T-eq. 28's steady profile at Peclet number ``initial_Ps``: each particle
+  gets a target scaled height, the quantiles of its species' share phi(zeta) (small) or
+  1 - phi(zeta) (large) of that profile, and the particles are inserted in about one-diameter
+  slabs of target height, bottom up, each slab above the highest particle of the one below it;
+  ``"segregated"`` is the limit initial_Ps -> infinity in two slabs.  A start nearer the
+  steady profile than the fully segregated one relaxes to it sooner, from the side its
+  initial_Ps lies on: measured with T-eq. 27 itself at Ps 5, D 0.039, depth 22 (2026-12-07),
+  the fitted Ps of a start at 7 is 5.79 at t = 600 where the fully segregated start's is
+  7.51, and a start at 3.5 is 4.22 where the mixed start's is 1.97).
 * **gravity** tilted by theta: g = (sin theta, 0, -cos theta).
 
 Everything random is drawn from ``numpy.random.default_rng(seed)``: the same configuration and
@@ -160,8 +169,59 @@ def _insert(rng, existing_pos, existing_radius, radius, Lx, Ly, z_lo, height0,
         uniforms = np.concatenate([uniforms, rng.random(len(uniforms))])
 
 
+def profile_target_heights(species, Ps: float, phi0: float) -> np.ndarray:
+    """Target scaled heights zeta in (0, 1) of a "profile" start: species 0 (small) at the
+    mid-quantiles of the distribution whose density is T-eq. 28's phi(zeta) at ``Ps``, the
+    others at those of 1 - phi(zeta) (each species' share of the volume at that height; the
+    particles of one species have one volume, so counts follow volumes)."""
+    from ..fitting.segregation import phi_teq28
+
+    species = np.asarray(species)
+    grid = np.linspace(0.0, 1.0, 4001)
+    phi = phi_teq28(grid, Ps, phi0)
+    out = np.empty(species.size)
+    for small, dens in ((True, phi), (False, 1.0 - phi)):
+        idx = np.nonzero((species == 0) == small)[0]
+        if not idx.size:
+            continue
+        cdf = np.concatenate(([0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(grid))))
+        cdf /= cdf[-1]
+        out[idx] = np.interp((np.arange(idx.size) + 0.5) / idx.size, cdf, grid)
+    return out
+
+
+def _insert_profile(rng, base_positions, base_r, d_flow, species, cfg, z_lo):
+    """Positions of a "profile" start (:class:`ChuteConfig`): the particles grouped by target
+    height (:func:`profile_target_heights`) into ~``PROFILE_SLABS_PER_H`` H slabs, each
+    inserted in random order above the highest top of the slabs below, its insertion domain
+    its share of the flow volume times H (growing by ``insertion_growth`` per rejection)."""
+    zeta = profile_target_heights(species, cfg.initial_Ps, cfg.phi0)
+    nslab = max(2, int(round(PROFILE_SLABS_PER_H * cfg.H)))
+    slab = np.minimum((zeta * nslab).astype(np.int64), nslab - 1)
+    vol = d_flow ** 3
+    pos = np.empty((d_flow.size, 3))
+    placed_pos, placed_r = base_positions, base_r
+    top = z_lo
+    for k in range(nslab):
+        idx = np.nonzero(slab == k)[0]
+        if not idx.size:
+            continue
+        idx = idx[rng.permutation(idx.size)]
+        r = 0.5 * d_flow[idx]
+        lo = top if k == 0 else top + float(r.max())
+        p = _insert(rng, placed_pos, placed_r, r, cfg.Lx, cfg.Ly, z_lo=lo,
+                    height0=cfg.H * float(vol[idx].sum() / vol.sum()), grow=cfg.insertion_growth)
+        pos[idx] = p
+        placed_pos = np.concatenate([placed_pos, p])
+        placed_r = np.concatenate([placed_r, r])
+        top = float((p[:, 2] + r).max())
+    return pos
+
+
 #: How a mixture's species start (:class:`ChuteConfig.initial_mixing`).
-INITIAL_MIXINGS = ("mixed", "segregated")
+INITIAL_MIXINGS = ("mixed", "segregated", "profile")
+#: target-height slabs of a "profile" start per unit of filling height (about one per diameter)
+PROFILE_SLABS_PER_H = 1.0
 
 
 @dataclass
@@ -184,8 +244,10 @@ class ChuteConfig:
     d_small: float = 1.0
     # flow insertion: height added to the insertion domain per rejected trial (module docstring)
     insertion_growth: float = DEFAULT_INSERTION_GROWTH
-    # mixtures: "mixed" (one random insertion order) or "segregated" (small below, large above)
+    # mixtures: "mixed" (one random insertion order), "segregated" (small below, large above)
+    # or "profile" (stratified as T-eq. 28's steady profile at Peclet number initial_Ps)
     initial_mixing: str = "mixed"
+    initial_Ps: float = 0.0
 
     def validate(self):
         check_range("theta", self.theta, 0.0, 90.0, lo_open=True, hi_open=True)
@@ -202,9 +264,16 @@ class ChuteConfig:
         if self.initial_mixing not in INITIAL_MIXINGS:
             raise ValueError(f"initial_mixing = {self.initial_mixing!r} is unknown: allowed "
                              f"{list(INITIAL_MIXINGS)}")
-        if self.initial_mixing == "segregated" and not self.bidisperse:
-            raise ValueError("initial_mixing = 'segregated' needs a mixture: phi0 = "
+        if self.initial_mixing in ("segregated", "profile") and not self.bidisperse:
+            raise ValueError(f"initial_mixing = {self.initial_mixing!r} needs a mixture: phi0 = "
                              f"{self.phi0:g}, allowed phi0 < 1")
+        if self.initial_mixing == "profile":
+            check_range("initial_Ps", self.initial_Ps, 0.0, 1e3, lo_open=True)
+            check_range("phi0", self.phi0, 0.0, 1.0, lo_open=True, hi_open=True)
+        elif self.initial_Ps != 0.0:
+            raise ValueError(f"initial_Ps = {self.initial_Ps!r} is set but initial_mixing = "
+                             f"{self.initial_mixing!r}: allowed only with initial_mixing = "
+                             "'profile'")
         return self
 
     @property
@@ -314,6 +383,8 @@ def build_chute(cfg: ChuteConfig, base_positions: np.ndarray | None = None) -> P
                         z_lo=top + float(r_l.max()) if len(r_l) else top,
                         height0=(1.0 - cfg.phi0) * cfg.H, grow=cfg.insertion_growth)
         pos_flow = np.concatenate([pos_s, pos_l])
+    elif cfg.bidisperse and cfg.initial_mixing == "profile":
+        pos_flow = _insert_profile(rng, base_positions, base_r, d_flow, species, cfg, z_lo)
     else:
         if cfg.bidisperse:
             order = rng.permutation(len(d_flow))

@@ -429,6 +429,22 @@ def _bulk_closures(pool, law, seed, windows=None):
     return out
 
 
+def approach_side(start: str, Ps: float) -> float:
+    """+1 when a run that started ``start`` approaches its steady Ps from below (its Ps a
+    lower bound), -1 from above: a mixed start from below, a segregated one from above, and
+    a ``profile<Ps0>`` start (T-eq. 28's profile at Ps0) from the side of Ps0: a Ps below Ps0
+    means the profile broadened from a sharper start (from above), a Ps above Ps0 that it
+    sharpened (from below); the relaxation does not overshoot (T-eq. 27)."""
+    if start == "segregated":
+        return -1.0
+    if start in ("mixed", "", "nan"):
+        return 1.0
+    from ..campaign.grid import start_initial_Ps
+
+    ps0 = start_initial_Ps(start)
+    return -1.0 if Ps < ps0 else 1.0
+
+
 def _ps_law(seg, law, seed):
     left = _state_counts(seg)
     use = (seg["state"] == "steady").to_numpy().copy()
@@ -448,7 +464,8 @@ def _ps_law(seg, law, seed):
         f"Ps(sigma) law from bidisperse runs of contact law {law} (sigma = {_range(seg['sigma'])})",
         seg, use, left, note) + "; " + UNDECIDED_TREATMENT["segregation"]
     # runs whose segregated state is still drifting bound their steady Ps from one side: from
-    # below after a mixed start, from above after a segregated one (granflow.engine.chute)
+    # below after a mixed start, from above after a segregated one, and after a profile<Ps0>
+    # start from the side of Ps0 on which the run's Ps still lies (granflow.engine.chute)
     one_sided, sides = None, None
     if "segregation_state" in seg.columns:
         drift = ((seg["state"] == "steady").to_numpy()
@@ -456,14 +473,15 @@ def _ps_law(seg, law, seed):
                  & (seg["sigma"].to_numpy(float) < 1.0 - 1e-9))
         start = (seg["initial_mixing"].astype(str).to_numpy() if "initial_mixing" in seg.columns
                  else np.full(len(seg), "mixed"))
-        sides = np.where(start == "segregated", -1.0, 1.0)[drift]
+        sides = np.array([approach_side(str(st), float(ps))
+                          for st, ps in zip(start, seg["Ps"].to_numpy(float))])[drift]
         d = seg[drift]
         if len(d):
             one_sided = (d["sigma"].to_numpy(float), d["Ps"].to_numpy(float),
                          pd.to_numeric(d.get("Ps_sem"), errors="coerce").to_numpy(float), sides)
             sel += (f"; {len(d)} drifting run(s) bound k only, as one-sided bounds on their "
-                    f"steady Ps ({int((sides > 0).sum())} from below, mixed start; "
-                    f"{int((sides < 0).sum())} from above, segregated start)")
+                    f"steady Ps ({int((sides > 0).sum())} from below, mixed or broader "
+                    f"start; {int((sides < 0).sum())} from above, segregated or sharper start)")
     return _with_selection(
         fit_Ps_law(runs["sigma"].to_numpy(float), runs["Ps"].to_numpy(float), sem,
                    contact_law=law, ids=_ids(runs), selection=sel, seed=seed,
