@@ -340,6 +340,37 @@ def test_pure_diffusion_decays_at_pi_squared_D_over_h_squared():
     assert amp == pytest.approx(eps * math.exp(-math.pi ** 2 * D * t / h ** 2), rel=1e-4)
 
 
+def test_a_start_on_a_nearer_profile_bounds_the_steady_peclet_number_sooner():
+    """The lever of ``initial_mixing: profile<Ps>`` (granflow.engine.chute), in T-eq. 27 itself
+    (Ps 5, D 0.039, depth 22: the paper's set-up at 1/sigma = 1.25 with the remixing
+    diffusivity measured at 1/sigma = 2): the Ps of T-eq. 28 fitted to phi(z) at t = 600 is
+    5.79 and 4.22 from starts on the steady profiles at Ps 7 and 3.5, where the fully
+    segregated and the mixed starts give 7.51 and 1.97 (the README's numbers); each start
+    approaches Ps 5 monotonically from its own side (a one-sided bound at every time)."""
+    from scipy.optimize import minimize_scalar
+
+    from granflow.continuum import segregation_layer
+
+    n = 200
+
+    def fitted(phi):
+        return minimize_scalar(lambda P: float(np.sum((steady_profile(P, 0.5, n) - phi) ** 2)),
+                               bounds=(0.05, 200.0), method="bounded",
+                               options={"xatol": 1e-6}).x
+
+    starts = {"sharp": np.where((np.arange(n) + 0.5) / n < 0.5, 1.0, 0.0),
+              "profile7": steady_profile(7.0, 0.5, n), "profile3.5": steady_profile(3.5, 0.5, n),
+              "mixed": None}
+    expect = {"sharp": 7.51, "profile7": 5.79, "profile3.5": 4.22, "mixed": 1.97}
+    for name, init in starts.items():
+        ds = segregation_layer(5.0, 0.039, 22.0, 0.5, t_end=600.0, phi_initial=init, n=n,
+                               n_out=7)
+        ps = np.array([fitted(p) for p in ds.phi.values[1:]])
+        assert ps[-1] == pytest.approx(expect[name], abs=0.006), name
+        side = np.sign(ps - 5.0)
+        assert np.all(side == side[0]) and np.all(np.diff(np.abs(ps - 5.0)) < 0), (name, ps)
+
+
 def test_segregation_time_scales_with_h_squared_over_D():
     a = segregation_layer(6.0, 0.02, 8.0, 0.5, t_end=2000.0, n=100)
     b = segregation_layer(6.0, 0.04, 8.0, 0.5, t_end=1000.0, n=100)
