@@ -19,6 +19,7 @@ fits the mean profile of the last windows.  The series Ps(t) then says
   ``Ps_inf +- stderr``, with the change still to come and its one-sided 95 % bound.
 
     .venv/bin/python benchmarks/segregation_approach.py RUN_DIR [--t-from 100] [--json OUT]
+        [--checkpoint]   # every window so far, from the run's checkpoint.npz
 """
 
 from __future__ import annotations
@@ -32,8 +33,27 @@ from pathlib import Path
 import numpy as np
 
 
-def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5) -> dict:
-    """Ps of T-eq. (28) per coarse-graining window of ``run_dir/profiles.nc``: arrays
+PREFIX = "extra__obs__profiles__"
+
+
+def checkpoint_profiles(checkpoint):
+    """Every coarse-graining window of a run so far, as a profiles dataset, from its
+    ``checkpoint.npz`` (the profile observer's accumulator state: the final ``profiles.nc`` of
+    a run whose segregated state is still drifting keeps only its last averaging time)."""
+    from granflow.coarse.profiles import DepthProfileAccumulator
+
+    with np.load(checkpoint, allow_pickle=False) as f:
+        state = {k[len(PREFIX):]: f[k] for k in f.files if k.startswith(PREFIX)}
+    if not state:
+        raise ValueError(f"{checkpoint} holds no profile accumulator ({PREFIX}*)")
+    state.pop("observer_calls", None)
+    return DepthProfileAccumulator.from_state_dict(state).to_dataset()
+
+
+def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5,
+                   from_checkpoint: bool = False) -> dict:
+    """Ps of T-eq. (28) per coarse-graining window of ``run_dir/profiles.nc`` (or, with
+    ``from_checkpoint``, of every window so far in ``run_dir/checkpoint.npz``): arrays
     ``t_start``, ``t_mid`` (the windows' mean snapshot time), ``Ps``, ``Ps_stderr`` (the fit's), ``depth`` (s - b) over the
     windows holding at least ``min_fill`` of the fullest window's snapshots; a window whose
     fit fails gets NaN."""
@@ -42,8 +62,11 @@ def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5) -
     from granflow.coarse.derived import flow_height
     from granflow.fitting import fit_Ps
 
-    with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
-        ds = src.load()
+    if from_checkpoint:
+        ds = checkpoint_profiles(Path(run_dir) / "checkpoint.npz")
+    else:
+        with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
+            ds = src.load()
     small = int(ds.attrs.get("cg_small_species", 0))
     z = np.asarray(ds["z"].values, dtype=float)
     nu = np.asarray(ds["species_volume_fraction_window"].values, dtype=float)  # (w, s, z)
@@ -122,6 +145,9 @@ def main(argv=None) -> int:
                     help="windows starting before this are left out of the approach fit")
     ap.add_argument("--last", type=int, default=4, help="windows of the one-sided bound")
     ap.add_argument("--json", help="write the series and the approach to this file")
+    ap.add_argument("--checkpoint", action="store_true",
+                    help="every window so far from the run's checkpoint.npz (a run still going, "
+                         "or stopped before its end) instead of its profiles.nc")
     args = ap.parse_args(argv)
     if args.last < 2:
         ap.error(f"--last = {args.last} is out of range: allowed >= 2")
@@ -129,13 +155,21 @@ def main(argv=None) -> int:
     params = {}
     if (run / "summary.json").exists():
         params = json.loads((run / "summary.json").read_text()).get("params", {})
-    w = window_peclets(run, params.get("sigma"))
+    elif (run / "params.yaml").exists():
+        import yaml
+
+        params = yaml.safe_load((run / "params.yaml").read_text()) or {}
+    w = window_peclets(run, params.get("sigma"), from_checkpoint=args.checkpoint)
     print(f"{run}: sigma = {params.get('sigma', '?')}, start "
           f"{params.get('initial_mixing', 'mixed')}, {w['Ps'].size} windows of {w['window']:g}")
     print("   t_start   Ps (T-eq. 28)  fit stderr   depth s - b")
     for a, p, s, d in zip(w["t_start"], w["Ps"], w["Ps_stderr"], w["depth"]):
         print(f"  {a:8.1f}   {p:12.4f}  {s:10.4f}   {d:10.3f}")
-    res = approach(w["t_mid"], w["Ps"], t_from=args.t_from, last=args.last)
+    try:
+        res = approach(w["t_mid"], w["Ps"], t_from=args.t_from, last=args.last)
+    except ValueError as exc:
+        print(f"no approach fitted: {exc}")
+        return 0
     kind = "lower" if res["side"] > 0 else "upper"
     print(f"approach from {'below' if res['side'] > 0 else 'above'}: Ps {res['Ps_first']:.3f} "
           f"-> {res['Ps_last']:.3f} +- {res['Ps_last_sem']:.3f} over the last {args.last} "

@@ -695,3 +695,33 @@ def test_segregation_approach_recovers_window_peclets_and_the_plateau_they_appro
         sa.approach(t[:5], Ps[:5])
     with pytest.raises(SystemExit):
         sa.main([str(run), "--last", "1"])
+
+
+def test_segregation_approach_reads_every_window_so_far_from_a_checkpoint(tmp_path):
+    """``--checkpoint``: the windows of the profile observer's state in a run's checkpoint.npz
+    (keys ``extra__obs__profiles__*``) give the same per-window fields as the accumulator that
+    wrote them, bit for bit; a checkpoint without that state is refused by name."""
+    from granflow.coarse.profiles import DepthProfileAccumulator
+
+    sa = _load("segregation_approach")
+    rng = np.random.default_rng(3)
+    acc = DepthProfileAccumulator(-1.0, 12.0, 0.1, width=0.25, Lx=4.0, Ly=4.0, n_species=2,
+                                  window_length=1.0)
+    n = 60
+    for k in range(5):
+        pos = rng.random((n, 3)) * [4.0, 4.0, 10.0]
+        acc.add_snapshot(0.5 * k, pos, rng.normal(size=(n, 3)), np.ones(n), np.ones(n),
+                         rng.integers(0, 2, n), np.zeros(n, bool), np.zeros(0, int),
+                         np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
+    state = {sa.PREFIX + k: v for k, v in acc.state_dict().items()}
+    state[sa.PREFIX + "observer_calls"] = np.int64(5)
+    np.savez(tmp_path / "checkpoint.npz", pos=np.zeros((1, 3)), **state)
+    got = sa.checkpoint_profiles(tmp_path / "checkpoint.npz")
+    want = acc.to_dataset()
+    assert got["species_volume_fraction_window"].shape[0] == 3  # windows [0, 1), [1, 2), [2, 3)
+    for name in ("species_volume_fraction_window", "stress_zz_window", "window_time_start",
+                 "window_n_snapshots"):
+        np.testing.assert_array_equal(got[name].values, want[name].values)
+    np.savez(tmp_path / "bare.npz", pos=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="holds no profile accumulator"):
+        sa.checkpoint_profiles(tmp_path / "bare.npz")
