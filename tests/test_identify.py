@@ -320,6 +320,37 @@ def test_Ps_saturated_over_the_sweep_gives_the_plateau_and_a_lower_bound_on_k(tm
         fit.extra["k_lower_bound"], rel=1e-12)
 
 
+def test_the_paper_setup_profile_starts_at_1_25_bound_k_as_recorded():
+    """The paper's segregation set-up at 1/sigma = 1.25 (granflow.reference.
+    SEGREGATION_PAPER_SETUP["bounds"], measured 2026-12-07): two runs started on T-eq. 28's
+    profiles at Ps 3.5 and 7, stopped while their segregated state still drifted, each bound the
+    steady Ps from the side of its start (the one from 3.5 rose above 3.5: a lower bound; the
+    one from 7 fell below 7: an upper bound, granflow.fitting.campaign.approach_side).  With
+    the recorded sweep (1/sigma = 1.5-2, on the plateau) they bound k from both sides, and the
+    recorded interval is what the fit gives."""
+    from granflow.fitting.campaign import approach_side
+    from granflow.reference import SEGREGATION_PAPER_SETUP
+
+    rec = SEGREGATION_PAPER_SETUP
+    inv, Ps, se = (np.array(v) for v in zip(*[(k, r[0], r[1]) for k, runs in
+                                                rec["sweep"].items() for r in runs]))
+    runs = rec["bounds"][1.25]
+    assert {r["start"] for r in runs} == {"profile3.5", "profile7"}
+    for r in runs:
+        assert approach_side(r["start"], r["Ps"]) == r["side"]
+    lo = next(r for r in runs if r["side"] > 0)
+    hi = next(r for r in runs if r["side"] < 0)
+    assert 3.5 < lo["Ps"] < hi["Ps"] < 7.0
+    one = ([0.8] * len(runs), [r["Ps"] for r in runs], [r["stderr"] for r in runs],
+           [r["side"] for r in runs])
+    fit = fit_Ps_law(1 / inv, Ps, se, one_sided=one)
+    got = (fit.extra["k_lower_bound"], fit.extra["k_upper_bound"])
+    assert got == pytest.approx(rec["fit"]["k_interval_with_bounds"], abs=0.01)
+    assert fit.extra["k_bound_runs_one_sided"] == 2.0
+    alone = fit_Ps_law(1 / inv, Ps, se)
+    assert alone.extra["k_upper_bound"] == math.inf and got[0] >= alone.extra["k_lower_bound"]
+
+
 def test_runs_that_bracket_their_steady_Ps_bound_k_from_both_sides(tmp_path):
     """A plateau sweep (T-eq. 29 at Pmax 7, k 5.21 sampled at 1/sigma = 1.5-2) bounds k from
     below only; runs at 1/sigma = 1.25 whose segregated state is still drifting bound their

@@ -342,7 +342,24 @@ SEGREGATION_PAPER_SETUP = {
     # 1/sigma = 1.75 lying 7 % above its neighbours); Pmax = plateau +- stderr (Birge-inflated),
     # one-sided 95 % bounds
     "fit": {"form": "plateau", "Pmax": (6.849, 0.096), "Pmax_lower_bound": 6.821,
-            "k_lower_bound": 3.005},
+            "k_lower_bound": 3.005,
+            # with the two one-sided runs of "bounds" (fit_Ps_law's k_interval, 95 % jointly)
+            "k_interval_with_bounds": (3.090, 20.184)},
+    # runs stopped while their segregated state still drifted, each a one-sided bound on its
+    # steady Ps (2026-12-07, seed 1, one core each on a 2-vCPU Zen 3 host): at 1/sigma = 1.25,
+    # started on T-eq. 28's profiles at Ps 3.5 and 7 (start~profile3.5, start~profile7), cut at
+    # t = 477 and 478 (4103 and 4081 s of CPU); Ps and its stderr over the last 200 time units
+    # (the campaign row's); side +1 a lower bound, -1 an upper bound.  The profile3.5 run's flow
+    # was still "undecided" (u_bar trending), so a campaign fit would leave it out; its Ps rose
+    # in every 50-unit window (3.42 ... 4.16), the profile7 run's fell (6.97 ... 6.22), and a
+    # relaxation fitted to the latter's windows extrapolates 5.72 +- 0.66 (tau 428), an
+    # estimate, not a bound (benchmarks/segregation_approach.py)
+    "bounds": {
+        1.25: [dict(start="profile3.5", Ps=4.079, stderr=0.038, side=1.0, t_end=477.0,
+                    cpu_s=4103.0),
+               dict(start="profile7", Ps=6.324, stderr=0.062, side=-1.0, t_end=477.7,
+                    cpu_s=4081.0)],
+    },
 }
 
 
