@@ -473,8 +473,8 @@ def _ps_law(seg, law, seed):
                  & (seg["sigma"].to_numpy(float) < 1.0 - 1e-9))
         start = (seg["initial_mixing"].astype(str).to_numpy() if "initial_mixing" in seg.columns
                  else np.full(len(seg), "mixed"))
-        sides = np.array([approach_side(str(st), float(ps))
-                          for st, ps in zip(start, seg["Ps"].to_numpy(float))])[drift]
+        sides = np.array([approach_side(str(st), float(ps)) for st, ps in
+                          zip(start[drift], seg["Ps"].to_numpy(float)[drift])])
         d = seg[drift]
         if len(d):
             one_sided = (d["sigma"].to_numpy(float), d["Ps"].to_numpy(float),
