@@ -20,6 +20,14 @@ fits the mean profile of the last windows.  The series Ps(t) then says
 
     .venv/bin/python benchmarks/segregation_approach.py RUN_DIR [--t-from 100] [--json OUT]
         [--checkpoint]   # every window so far, from the run's checkpoint.npz
+        [--parent PARENT [--parent-time T]]   # a continuation (simulate --from): the
+                                              # parent's windows first, this run's after T
+
+A run continued with ``granflow simulate --from STATE`` (same inclination, clock reset to 0)
+is one approach in two pieces: ``--parent`` (the parent's run folder, read like RUN_DIR, or a
+checkpoint ``.npz`` of it) puts the parent's windows first and shifts this run's by the
+parent's end time (``--parent-time``, by default the ``parent_time`` this run's summary.json
+records).
 """
 
 from __future__ import annotations
@@ -62,7 +70,9 @@ def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5,
     from granflow.coarse.derived import flow_height
     from granflow.fitting import fit_Ps
 
-    if from_checkpoint:
+    if Path(run_dir).suffix == ".npz":  # a checkpoint file itself
+        ds = checkpoint_profiles(run_dir)
+    elif from_checkpoint:
         ds = checkpoint_profiles(Path(run_dir) / "checkpoint.npz")
     else:
         with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
@@ -97,6 +107,24 @@ def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5,
         out["Ps_stderr"].append(se)
         out["depth"].append(depth)
     return {k: np.asarray(v, dtype=float) for k, v in out.items()} | {"window": width}
+
+
+def join_windows(parent: dict, child: dict, parent_time: float) -> dict:
+    """The windows of a run continued from its parent's final state (clock reset to 0) on
+    the parent's clock: the parent's windows, then the child's shifted by ``parent_time``
+    (the parent's time at the saved state); ``piece`` says which run each window is from
+    (0 parent, 1 continuation)."""
+    if not (math.isfinite(parent_time) and parent_time > 0):
+        raise ValueError(f"parent_time = {parent_time!r} is out of range: allowed a finite "
+                         "time > 0 (the parent's time at the state the run continued from)")
+    out = {}
+    for k in ("t_start", "t_mid", "Ps", "Ps_stderr", "depth"):
+        shift = parent_time if k in ("t_start", "t_mid") else 0.0
+        out[k] = np.concatenate([np.asarray(parent[k], dtype=float),
+                                 np.asarray(child[k], dtype=float) + shift])
+    out["piece"] = np.concatenate([np.zeros(len(parent["Ps"])), np.ones(len(child["Ps"]))])
+    out["window"] = child["window"]
+    return out
 
 
 def approach(t, Ps, *, t_from: float = -math.inf, last: int = 4) -> dict:
@@ -148,6 +176,12 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoint", action="store_true",
                     help="every window so far from the run's checkpoint.npz (a run still going, "
                          "or stopped before its end) instead of its profiles.nc")
+    ap.add_argument("--parent", help="the run this one continued from (granflow simulate "
+                    "--from): its folder (profiles.nc, or checkpoint.npz with --checkpoint) or "
+                    "a checkpoint .npz; its windows come first")
+    ap.add_argument("--parent-time", type=float, default=None,
+                    help="the parent's time at the state this run continued from (default: "
+                         "parent_time in this run's summary.json)")
     args = ap.parse_args(argv)
     if args.last < 2:
         ap.error(f"--last = {args.last} is out of range: allowed >= 2")
@@ -160,6 +194,18 @@ def main(argv=None) -> int:
 
         params = yaml.safe_load((run / "params.yaml").read_text()) or {}
     w = window_peclets(run, params.get("sigma"), from_checkpoint=args.checkpoint)
+    if args.parent:
+        t0 = args.parent_time
+        if t0 is None and (run / "summary.json").exists():
+            t0 = json.loads((run / "summary.json").read_text()).get(
+                "parent", {}).get("parent_time")
+        if t0 is None:
+            ap.error("--parent needs --parent-time (this run has no summary.json naming it)")
+        parent = window_peclets(args.parent, params.get("sigma"),
+                                from_checkpoint=args.checkpoint)
+        w = join_windows(parent, w, float(t0))
+        print(f"continued from {args.parent} at its t = {float(t0):g}: "
+              f"{int((w['piece'] == 0).sum())} parent windows first")
     print(f"{run}: sigma = {params.get('sigma', '?')}, start "
           f"{params.get('initial_mixing', 'mixed')}, {w['Ps'].size} windows of {w['window']:g}")
     print("   t_start   Ps (T-eq. 28)  fit stderr   depth s - b")
@@ -183,6 +229,7 @@ def main(argv=None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(
             {"run": str(run), "params": params,
+             "parent": args.parent,
              "windows": {k: v.tolist() for k, v in w.items() if k != "window"},
              "window": w["window"], "approach": res}, indent=1))
     return 0

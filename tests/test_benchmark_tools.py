@@ -2,6 +2,7 @@
 known answers."""
 
 import importlib.util
+import json
 import math
 from pathlib import Path
 
@@ -725,3 +726,36 @@ def test_segregation_approach_reads_every_window_so_far_from_a_checkpoint(tmp_pa
     np.savez(tmp_path / "bare.npz", pos=np.zeros((1, 3)))
     with pytest.raises(ValueError, match="holds no profile accumulator"):
         sa.checkpoint_profiles(tmp_path / "bare.npz")
+
+
+def test_segregation_approach_joins_a_continuation_to_its_parent_on_the_parents_clock(
+        tmp_path, capsys):
+    """``--parent``: a relaxation split at t = 500 into a parent run and a continuation (its
+    clock reset to 0, as ``simulate --from`` does) gives, joined on the parent's clock, the
+    same window series and plateau as the unsplit run; the parent's time is read from the
+    continuation's summary.json (``parent.parent_time``); a time <= 0 is refused by name."""
+    sa = _load("segregation_approach")
+    t = 25.0 + 50.0 * np.arange(20)
+    Ps = 5.0 + 4.0 * np.exp(-t / 300.0) + 0.01 * np.sin(1.7 * np.arange(20))
+    whole, parent, child = (tmp_path / n for n in ("whole", "parent", "child"))
+    for d in (whole, parent, child):
+        d.mkdir()
+    _approach_profiles(whole, t, Ps)
+    _approach_profiles(parent, t[:10], Ps[:10])
+    _approach_profiles(child, t[10:] - 500.0, Ps[10:])
+    (child / "summary.json").write_text(json.dumps({"params": {}, "parent": {
+        "parent_state": "x", "parent_time": 500.0}}))
+    out = tmp_path / "joined.json"
+    assert sa.main([str(child), "--parent", str(parent), "--t-from", "0", "--json",
+                    str(out)]) == 0
+    assert "10 parent windows first" in capsys.readouterr().out
+    got = json.loads(out.read_text())
+    ref = sa.window_peclets(whole)
+    np.testing.assert_allclose(got["windows"]["t_mid"], ref["t_mid"])
+    np.testing.assert_allclose(got["windows"]["Ps"], ref["Ps"], rtol=1e-12)
+    assert got["windows"]["piece"] == [0.0] * 10 + [1.0] * 10
+    want = sa.approach(ref["t_mid"], ref["Ps"], t_from=0.0)
+    assert got["approach"]["Ps_inf"] == pytest.approx(want["Ps_inf"], rel=1e-9)
+    assert got["approach"]["side"] == -1.0
+    with pytest.raises(ValueError, match="parent_time"):
+        sa.join_windows(ref, ref, 0.0)
