@@ -344,21 +344,28 @@ SEGREGATION_PAPER_SETUP = {
     "fit": {"form": "plateau", "Pmax": (6.849, 0.096), "Pmax_lower_bound": 6.821,
             "k_lower_bound": 3.005,
             # with the two one-sided runs of "bounds" (fit_Ps_law's k_interval, 95 % jointly)
-            "k_interval_with_bounds": (3.090, 20.184)},
+            "k_interval_with_bounds": (3.802, 9.016)},
     # runs stopped while their segregated state still drifted, each a one-sided bound on its
     # steady Ps (2026-12-07, seed 1, one core each on a 2-vCPU Zen 3 host): at 1/sigma = 1.25,
-    # started on T-eq. 28's profiles at Ps 3.5 and 7 (start~profile3.5, start~profile7), cut at
-    # t = 477 and 478 (4103 and 4081 s of CPU); Ps and its stderr over the last 200 time units
-    # (the campaign row's); side +1 a lower bound, -1 an upper bound.  The profile3.5 run's flow
-    # was still "undecided" (u_bar trending), so a campaign fit would leave it out; its Ps rose
-    # in every 50-unit window (3.42 ... 4.16), the profile7 run's fell (6.97 ... 6.22), and a
-    # relaxation fitted to the latter's windows extrapolates 5.72 +- 0.66 (tau 428), an
-    # estimate, not a bound (benchmarks/segregation_approach.py)
+    # started on T-eq. 28's profiles at Ps 3.5 and 7 (start~profile3.5, start~profile7), run to
+    # t = 477 and 478 (4103 and 4081 s of CPU), then continued from their final states
+    # (granflow simulate --from, same inclination, early_stop false) for 600 more time units
+    # (about 5600 s of CPU each), to t = 1077 and 1078; Ps and its stderr over the last 200
+    # time units (the campaign row's, granflow campaign row --segregation-window 200, on the
+    # continuation); side +1 a lower bound, -1 an upper bound.  At t = 477 they bounded Ps to
+    # [4.079 +- 0.038, 6.324 +- 0.062] (the profile3.5 run's flow still "undecided"); by
+    # t = 1077 both flows are steady (since t = 305 and 0 of the continuations) and the
+    # bracket is [4.507, 5.831].  Per 50-unit window the profile3.5 run's Ps rose in all but
+    # the last (-0.012), the profile7 run's fell in all after t = 50 but one (+0.026)
+    # (benchmarks/segregation_approach.py --parent).  Exponential relaxations fitted to the two
+    # series extrapolate 4.77 +- 0.06 (rising, tau 592) and 5.60 +- 0.06 (falling, tau 527):
+    # they disagree, and the rising one's grew as the run went on (4.63 at t = 577), so the
+    # approach is slower than exponential and an extrapolation is not a measurement here
     "bounds": {
-        1.25: [dict(start="profile3.5", Ps=4.079, stderr=0.038, side=1.0, t_end=477.0,
-                    cpu_s=4103.0),
-               dict(start="profile7", Ps=6.324, stderr=0.062, side=-1.0, t_end=477.7,
-                    cpu_s=4081.0)],
+        1.25: [dict(start="profile3.5", Ps=4.507, stderr=0.030, side=1.0, t_end=1077.0,
+                    cpu_s=9708.0),
+               dict(start="profile7", Ps=5.831, stderr=0.0085, side=-1.0, t_end=1077.7,
+                    cpu_s=9716.0)],
     },
 }
 
