@@ -73,7 +73,15 @@ def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5,
     if Path(run_dir).suffix == ".npz":  # a checkpoint file itself
         ds = checkpoint_profiles(run_dir)
     elif from_checkpoint:
-        ds = checkpoint_profiles(Path(run_dir) / "checkpoint.npz")
+        ck = Path(run_dir) / "checkpoint.npz"
+        if not ck.exists():
+            done = (Path(run_dir) / "summary.json").exists()
+            raise FileNotFoundError(
+                f"{ck} does not exist" + (": the run has finished, which removes its "
+                                          "checkpoint (its profiles.nc keeps the last "
+                                          "averaging time; leave out --checkpoint)"
+                                          if done else ""))
+        ds = checkpoint_profiles(ck)
     else:
         with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
             ds = src.load()

@@ -759,3 +759,5 @@ def test_segregation_approach_joins_a_continuation_to_its_parent_on_the_parents_
     assert got["approach"]["side"] == -1.0
     with pytest.raises(ValueError, match="parent_time"):
         sa.join_windows(ref, ref, 0.0)
+    with pytest.raises(FileNotFoundError, match="the run has finished"):
+        sa.window_peclets(child, from_checkpoint=True)
