@@ -18,6 +18,7 @@ apply to a particle simulation (``acdd:1.3 applicable``), which leaves out
 from __future__ import annotations
 
 import contextlib
+import copy
 import sys
 from dataclasses import dataclass, field
 
@@ -47,7 +48,7 @@ def _memoized_cf_util():
             key = (id(ds), args, tuple(sorted(kwargs.items())))
             if key not in _cache:
                 _cache[key] = _fn(ds, *args, **kwargs)
-            return _cache[key]
+            return copy.copy(_cache[key])  # a caller that edits its list leaves the cache be
         wrapped[fn] = memo
     patched = []
     for mod in [m for k, m in list(sys.modules.items()) if k.startswith("compliance_checker")]:
