@@ -3,7 +3,9 @@ window, and what that says about the steady Ps when the run ended before its seg
 was shown steady (issue 14: the segregation reference's k needs 1/sigma = 1.1 and 1.25, whose
 runs outlast a session).
 
-For every full coarse-graining window of the run's ``profiles.nc`` (``cg_window`` long) Ps of
+For every full coarse-graining window of the run's ``profiles_history.nc`` (every window
+from the start; a run older than that file: its ``profiles.nc``, the windows it averaged;
+``cg_window`` long) Ps of
 T-eq. (28) is fitted to that window's small-particle fraction phi(z) on the depth scaled over
 that window's [b, s] of Eq. (42), exactly as :func:`granflow.campaign.collect.segregation_fit`
 fits the mean profile of the last windows.  The series Ps(t) then says
@@ -78,12 +80,17 @@ def window_peclets(run_dir, sigma: float | None = None, min_fill: float = 0.5,
             done = (Path(run_dir) / "summary.json").exists()
             raise FileNotFoundError(
                 f"{ck} does not exist" + (": the run has finished, which removes its "
-                                          "checkpoint (its profiles.nc keeps the last "
-                                          "averaging time; leave out --checkpoint)"
+                                          "checkpoint (leave out --checkpoint: its "
+                                          "profiles_history.nc keeps every window, an "
+                                          "older run's profiles.nc the last averaging time)"
                                           if done else ""))
         ds = checkpoint_profiles(ck)
     else:
-        with xr.open_dataset(Path(run_dir) / "profiles.nc") as src:
+        # a finished bidisperse run keeps every window in profiles_history.nc (granflow since
+        # 2026-12-07); an older one only the windows its profiles.nc averaged
+        path = Path(run_dir) / "profiles_history.nc"
+        path = path if path.exists() else Path(run_dir) / "profiles.nc"
+        with xr.open_dataset(path) as src:
             ds = src.load()
     small = int(ds.attrs.get("cg_small_species", 0))
     z = np.asarray(ds["z"].values, dtype=float)

@@ -696,6 +696,13 @@ def test_segregation_approach_recovers_window_peclets_and_the_plateau_they_appro
         sa.approach(t[:5], Ps[:5])
     with pytest.raises(SystemExit):
         sa.main([str(run), "--last", "1"])
+    # a finished bidisperse run: profiles.nc holds the last windows only, profiles_history.nc
+    # every window, and the tool reads the latter
+    (run / "profiles.nc").rename(run / "profiles_history.nc")
+    _approach_profiles(run, t[-4:], Ps[-4:])
+    w = sa.window_peclets(run)
+    assert w["Ps"].size == 20
+    np.testing.assert_allclose(w["Ps"], Ps, rtol=1e-4)
 
 
 def test_segregation_approach_reads_every_window_so_far_from_a_checkpoint(tmp_path):

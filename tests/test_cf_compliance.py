@@ -75,11 +75,38 @@ def outputs(tmp_path_factory):
     lib = write_library(d / "lib", "cftest", fits, table, config=config)
     mp.undo()
     files = {"series.nc": d / "run" / "series.nc", "profiles.nc": d / "run" / "profiles.nc",
+             "profiles_history.nc": d / "run" / "profiles_history.nc",
              "campaign_table.nc": d / "campaign_table.nc", "closure library": lib}
     return files, config
 
 
-KINDS = ["series.nc", "profiles.nc", "campaign_table.nc", "closure library"]
+KINDS = ["series.nc", "profiles.nc", "profiles_history.nc", "campaign_table.nc",
+         "closure library"]
+
+
+def test_a_bidisperse_run_keeps_every_window_in_its_profiles_history(outputs):
+    """profiles.nc averages the last averaging_time of this drifting bidisperse run (3 of its
+    6 time units); profiles_history.nc keeps every window from t = 0, the shared ones bit for
+    bit, and summary.json records it with its size and SHA-256 (so a finished run's approach
+    of its segregated state is not lost with its checkpoint)."""
+    from granflow.simulate import file_record
+
+    files, _ = outputs
+    run = files["profiles.nc"].parent
+    with xr.open_dataset(files["profiles.nc"]) as last, \
+            xr.open_dataset(files["profiles_history.nc"]) as every:
+        t_last = last["window_time_start"].values
+        t_every = every["window_time_start"].values
+        assert t_every.min() == 0.0 and last.attrs["profile_time_from"] == 3.0
+        assert t_last.min() >= 3.0 and len(t_every) == 4 and len(t_last) == 2  # 0, 2, 4, 6
+        assert every.attrs["profile_time_from"] == 0.0
+        assert every.attrs["profiles_nc_time_from"] == 3.0
+        shared = np.isin(t_every, t_last)
+        assert shared.sum() == len(t_last)
+        for name in ("species_volume_fraction_window", "stress_zz_window"):
+            np.testing.assert_array_equal(every[name].values[shared], last[name].values)
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["outputs"]["profiles_history.nc"] == file_record(files["profiles_history.nc"])
 
 
 @pytest.fixture(scope="module")

@@ -966,12 +966,17 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
         ds["segregation_indicator"].attrs = U.cf(
             U.LENGTH, "small-particle centre of mass height minus that of all flow particles")
     profiles = profile_obs.dataset(t_from=t_from, attrs=attrs)
+    # a bidisperse run also keeps every window from its start (profiles.nc averages only the
+    # steady or last ones): how its segregated state approached its end is the evidence for
+    # a run still drifting (a one-sided bound on its steady Ps), and its checkpoint, which
+    # held the windows while it ran, is removed when it finishes
+    history = profile_obs.dataset(t_from=None, attrs=attrs) if seg is not None else None
     # a steady run layered in z (paper §8) is "layered": the energy ratio cannot tell
     state, layering, note = layered_state(final["flow_state"], profiles["z"].values,
                                           profiles["volume_fraction"].values)
     if state != final["flow_state"]:
         final = dict(final, flow_state=state, explanation=final["explanation"] + note)
-    for d in (ds, profiles):
+    for d in (ds, profiles) + ((history,) if history is not None else ()):
         d.attrs.update(flow_state=final["flow_state"], classification=final["explanation"],
                        layering_amplitude=layering)
     try:
@@ -1021,10 +1026,25 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
                  "kinetic and base-contact parts; Weinhart et al. 2012 §3) of one periodic-chute "
                  f"discrete particle simulation ({where}){source}, averaged from t = {t_from:g}, "
                  "with per-time-window values for spreads."))
+    written = [name for name in RUN_OUTPUTS if name != "final_state.npz"]
+    if history is not None:
+        if engine != "numba":
+            history.attrs["source"] = profiles.attrs["source"]
+        cfconventions.apply(
+            history, kind="profiles", config=p,
+            title=f"granflow chute run depth profiles, every window ({where})",
+            summary=("Coarse-grained depth profiles of one bidisperse periodic-chute discrete "
+                     f"particle simulation ({where}){source}, per time window from the run's "
+                     "start (profiles.nc averages the windows from t = "
+                     f"{t_from:g} only): how the segregated state approached its end."))
+        starts = history["window_time_start"].values if "window_time_start" in history else []
+        history.attrs.update(profile_time_from=float(min(starts)) if len(starts) else 0.0,
+                             profiles_nc_time_from=t_from)
+        atomic_to_netcdf(history, out_dir / PROFILES_HISTORY)
+        written.append(PROFILES_HISTORY)
     atomic_to_netcdf(ds, out_dir / "series.nc")
     atomic_to_netcdf(profiles, out_dir / "profiles.nc")
     save = getattr(run.system, "save", None)
-    written = [name for name in RUN_OUTPUTS if name != "final_state.npz"]
     if save is not None:
         save(out_dir / "final_state.npz")
         written.append("final_state.npz")
@@ -1039,6 +1059,8 @@ def write_outputs(p: dict, out_dir, run, monitor_obs, profile_obs, seg_obs=None,
 
 #: the outputs of a run whose size and SHA-256 summary.json records (``outputs``)
 RUN_OUTPUTS = ("series.nc", "profiles.nc", "final_state.npz")
+#: a bidisperse run's profiles per window from its start (recorded in ``outputs`` when written)
+PROFILES_HISTORY = "profiles_history.nc"
 
 
 def file_record(path) -> dict:
