@@ -24,6 +24,7 @@ fits the mean profile of the last windows.  The series Ps(t) then says
         [--checkpoint]   # every window so far, from the run's checkpoint.npz
         [--parent PARENT [--parent-time T]]   # a continuation (simulate --from): the
                                               # parent's windows first, this run's after T
+        [--parent P0 --parent P1 ...]         # a chain of continuations, oldest first
 
 A run continued with ``granflow simulate --from STATE`` (same inclination, clock reset to 0)
 is one approach in two pieces: ``--parent`` (the parent's run folder, read like RUN_DIR, or a
@@ -129,17 +130,41 @@ def join_windows(parent: dict, child: dict, parent_time: float) -> dict:
     the parent's clock: the parent's windows, then the child's shifted by ``parent_time``
     (the parent's time at the saved state); ``piece`` says which run each window is from
     (0 parent, 1 continuation)."""
-    if not (math.isfinite(parent_time) and parent_time > 0):
-        raise ValueError(f"parent_time = {parent_time!r} is out of range: allowed a finite "
-                         "time > 0 (the parent's time at the state the run continued from)")
+    return join_chain([parent, child], [parent_time])
+
+
+def join_chain(pieces: list, parent_times: list) -> dict:
+    """The windows of a chain of continuations on the first run's clock: ``pieces[0]`` the
+    first run's windows, ``pieces[k]`` those of the run continued from ``pieces[k - 1]``'s
+    saved state at that run's time ``parent_times[k - 1]`` (each continuation's clock reset
+    to 0), so piece k is shifted by the sum of the first k parent times; ``piece`` is each
+    window's k."""
+    if len(parent_times) != len(pieces) - 1:
+        raise ValueError(f"{len(pieces)} pieces need {len(pieces) - 1} parent times, "
+                         f"got {len(parent_times)}")
+    for t in parent_times:
+        if not (math.isfinite(t) and t > 0):
+            raise ValueError(f"parent_time = {t!r} is out of range: allowed a finite time > 0 "
+                             "(the parent's time at the state the run continued from)")
+    offsets = np.concatenate([[0.0], np.cumsum(np.asarray(parent_times, dtype=float))])
     out = {}
     for k in ("t_start", "t_mid", "Ps", "Ps_stderr", "depth"):
-        shift = parent_time if k in ("t_start", "t_mid") else 0.0
-        out[k] = np.concatenate([np.asarray(parent[k], dtype=float),
-                                 np.asarray(child[k], dtype=float) + shift])
-    out["piece"] = np.concatenate([np.zeros(len(parent["Ps"])), np.ones(len(child["Ps"]))])
-    out["window"] = child["window"]
+        out[k] = np.concatenate([np.asarray(w[k], dtype=float)
+                                 + (off if k in ("t_start", "t_mid") else 0.0)
+                                 for w, off in zip(pieces, offsets)])
+    out["piece"] = np.concatenate([np.full(len(w["Ps"]), float(i))
+                                   for i, w in enumerate(pieces)])
+    out["window"] = pieces[-1]["window"]
     return out
+
+
+def parent_time_of(run) -> float | None:
+    """The parent's time at the state a continuation started from (its summary.json's
+    ``parent.parent_time``), None when the run records none."""
+    f = Path(run) / "summary.json"
+    if Path(run).suffix == ".npz" or not f.exists():
+        return None
+    return json.loads(f.read_text()).get("parent", {}).get("parent_time")
 
 
 def approach(t, Ps, *, t_from: float = -math.inf, last: int = 4) -> dict:
@@ -191,9 +216,12 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoint", action="store_true",
                     help="every window so far from the run's checkpoint.npz (a run still going, "
                          "or stopped before its end) instead of its profiles.nc")
-    ap.add_argument("--parent", help="the run this one continued from (granflow simulate "
-                    "--from): its folder (profiles.nc, or checkpoint.npz with --checkpoint) or "
-                    "a checkpoint .npz; its windows come first")
+    ap.add_argument("--parent", action="append",
+                    help="the run this one continued from (granflow simulate --from): its "
+                         "folder (profiles_history.nc or profiles.nc, checkpoint.npz with "
+                         "--checkpoint) or a checkpoint .npz; its windows come first.  Repeat "
+                         "it for a chain of continuations, oldest first (each later one a "
+                         "folder whose summary.json names its parent_time)")
     ap.add_argument("--parent-time", type=float, default=None,
                     help="the parent's time at the state this run continued from (default: "
                          "parent_time in this run's summary.json)")
@@ -210,17 +238,23 @@ def main(argv=None) -> int:
         params = yaml.safe_load((run / "params.yaml").read_text()) or {}
     w = window_peclets(run, params.get("sigma"), from_checkpoint=args.checkpoint)
     if args.parent:
-        t0 = args.parent_time
-        if t0 is None and (run / "summary.json").exists():
-            t0 = json.loads((run / "summary.json").read_text()).get(
-                "parent", {}).get("parent_time")
+        t0 = args.parent_time if args.parent_time is not None else parent_time_of(run)
         if t0 is None:
             ap.error("--parent needs --parent-time (this run has no summary.json naming it)")
-        parent = window_peclets(args.parent, params.get("sigma"),
-                                from_checkpoint=args.checkpoint)
-        w = join_windows(parent, w, float(t0))
-        print(f"continued from {args.parent} at its t = {float(t0):g}: "
-              f"{int((w['piece'] == 0).sum())} parent windows first")
+        # the parents oldest first; each later parent names its own parent's time
+        times = []
+        for par in args.parent[1:]:
+            tp = parent_time_of(par)
+            if tp is None:
+                ap.error(f"--parent {par}: not the first parent, so it must be a continuation "
+                         "whose summary.json names its parent_time")
+            times.append(float(tp))
+        pieces = [window_peclets(par, params.get("sigma"), from_checkpoint=args.checkpoint)
+                  for par in args.parent]
+        w = join_chain(pieces + [w], times + [float(t0)])
+        print(f"continued from {' -> '.join(args.parent)} (at their t = "
+              f"{', '.join(f'{t:g}' for t in times + [float(t0)])}): "
+              f"{int((w['piece'] < len(pieces)).sum())} parent windows first")
     print(f"{run}: sigma = {params.get('sigma', '?')}, start "
           f"{params.get('initial_mixing', 'mixed')}, {w['Ps'].size} windows of {w['window']:g}")
     print("   t_start   Ps (T-eq. 28)  fit stderr   depth s - b")

@@ -766,5 +766,24 @@ def test_segregation_approach_joins_a_continuation_to_its_parent_on_the_parents_
     assert got["approach"]["side"] == -1.0
     with pytest.raises(ValueError, match="parent_time"):
         sa.join_windows(ref, ref, 0.0)
+    # a chain in three pieces (continued twice): --parent oldest first, each continuation's
+    # own summary.json naming its parent's time; the same series as the unsplit run
+    first, middle, last = (tmp_path / n for n in ("first", "middle", "last"))
+    for d in (first, middle, last):
+        d.mkdir()
+    _approach_profiles(first, t[:6], Ps[:6])
+    _approach_profiles(middle, t[6:13] - 300.0, Ps[6:13])
+    _approach_profiles(last, t[13:] - 650.0, Ps[13:])
+    for d, tp in ((middle, 300.0), (last, 350.0)):
+        (d / "summary.json").write_text(json.dumps({"params": {}, "parent": {
+            "parent_state": "x", "parent_time": tp}}))
+    assert sa.main([str(last), "--parent", str(first), "--parent", str(middle), "--t-from",
+                    "0", "--json", str(out)]) == 0
+    got = json.loads(out.read_text())
+    np.testing.assert_allclose(got["windows"]["t_mid"], ref["t_mid"])
+    np.testing.assert_allclose(got["windows"]["Ps"], ref["Ps"], rtol=1e-12)
+    assert got["windows"]["piece"] == [0.0] * 6 + [1.0] * 7 + [2.0] * 7
+    with pytest.raises(SystemExit):  # a later parent must name its own parent's time
+        sa.main([str(last), "--parent", str(middle), "--parent", str(first)])
     with pytest.raises(FileNotFoundError, match="the run has finished"):
         sa.window_peclets(child, from_checkpoint=True)
