@@ -14,8 +14,9 @@ fits the mean profile of the last windows.  The series Ps(t) then says
   segregated start from above (Ps falls, the sharp interface broadening), so the last
   windows' Ps is a one-sided bound on the steady value (what the campaign fit uses for a
   ``drifting`` run, :func:`granflow.fitting.segregation.fit_Ps_law`'s ``one_sided``);
-* and, as an *extrapolation* (not a measurement), the plateau of an exponential relaxation
-  Ps(t) = Ps_inf + a exp(-(t - t_1) / tau) fitted to the windows after ``--t-from``
+* and, as an *extrapolation* (not a measurement), the plateau of a (stretched) exponential
+  relaxation Ps(t) = Ps_inf + a exp(-((t - t_1) / tau)^beta) fitted to the windows after
+  ``--t-from``
   (:func:`granflow.steady.segregation.relaxation_projection`, the steady detector's own
   projection, covariance inflated by the residuals' statistical inefficiency):
   ``Ps_inf +- stderr``, with the change still to come and its one-sided 95 % bound.
@@ -174,9 +175,9 @@ def approach(t, Ps, *, t_from: float = -math.inf, last: int = 4) -> dict:
     against the last ``last``: a lower bound, as after a mixed start), -1 when it fell (an
     upper bound, as after a segregated start); ``Ps_last``: mean of the last ``last`` windows,
     ``Ps_last_sem`` their standard error (spread / sqrt(n)).  ``Ps_inf``, ``Ps_inf_stderr``,
-    ``tau``, ``remaining``, ``remaining_bound``, ``identified``: the exponential relaxation
-    fitted to the windows after ``t_from`` (an extrapolation; NaN where no relaxation is
-    identified)."""
+    ``tau``, ``beta``, ``remaining``, ``remaining_bound``, ``identified``: the (stretched)
+    exponential relaxation fitted to the windows after ``t_from`` (an extrapolation; NaN where
+    no relaxation is identified)."""
     from granflow.steady.segregation import SEGREGATION_ALPHA, relaxation_projection
     from scipy import stats
 
@@ -197,10 +198,11 @@ def approach(t, Ps, *, t_from: float = -math.inf, last: int = 4) -> dict:
         se = (rx.bound - abs(rx.remaining)) / z
         # Ps_inf = fitted value now + remaining; its stderr is that of the remaining change
         out.update(Ps_inf=float(rx.s_inf), Ps_inf_stderr=float(se), tau=float(rx.tau),
+                   beta=float(rx.beta),
                    remaining=float(rx.remaining), remaining_bound=float(rx.bound),
                    identified=True, how=rx.how)
     else:
-        out.update(Ps_inf=math.nan, Ps_inf_stderr=math.nan, tau=math.nan,
+        out.update(Ps_inf=math.nan, Ps_inf_stderr=math.nan, tau=math.nan, beta=math.nan,
                    remaining=float(rx.remaining), remaining_bound=float(rx.bound),
                    identified=False, how=rx.how)
     return out
@@ -271,7 +273,8 @@ def main(argv=None) -> int:
           f"windows (t >= {res['t_last_from']:g}): a one-sided ({kind}) bound on the steady Ps")
     if res["identified"]:
         print(f"extrapolated (relaxation fit, t >= {args.t_from:g}): Ps_inf = "
-              f"{res['Ps_inf']:.3f} +- {res['Ps_inf_stderr']:.3f}, tau = {res['tau']:.4g}; "
+              f"{res['Ps_inf']:.3f} +- {res['Ps_inf_stderr']:.3f}, tau = {res['tau']:.4g}, beta = "
+              f"{res['beta']:.2f}; "
               f"change still to come {res['remaining']:+.3f} (95 % bound {res['remaining_bound']:.3f})")
     else:
         print(f"no relaxation identified ({res['how']})")

@@ -231,6 +231,32 @@ def test_slow_percolation_is_not_steady_until_its_projected_change_is_small():
     assert late.relaxation_time == pytest.approx(200.0, rel=0.25)
 
 
+@pytest.mark.parametrize("beta,steady_by", [(1.0, 1200.0), (0.7, 2200.0), (0.5, 3550.0)])
+def test_an_approach_slower_than_exponential_is_not_called_steady_early(beta, steady_by):
+    """Known answer: s relaxes from 0 to -4 as exp(-(t / 300)^beta) (AR(1) noise 0.03,
+    samples every 2, checked every 50).  At the first steady verdict the change truly still
+    to come is within the tolerance (3 % of the total + 0.03 = 3.75 % of it), whatever the
+    stretch; an exponential projection alone called beta = 0.7 and 0.5 steady with 6.6 % and
+    11.5 % to come (at t = 1250 and 1400, another noise realisation).  An exponential approach
+    is still called steady early (t <= 1200), and the fitted stretch is near the true one."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 3600.0, 2.0)
+    true = -4.0 * (1.0 - np.exp(-(t / 300.0) ** beta))
+    s = true + _ar1(t.size, rng, phi=math.exp(-0.2), scale=0.03)
+    for end in np.arange(300.0, 3600.0, 50.0):
+        k = t <= end
+        st = segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0)
+        if st.steady:
+            break
+    assert st.steady, st.message
+    to_come = abs(true[k][-1] + 4.0)
+    assert to_come <= 0.03 * 4.0 + 0.03, (end, to_come)
+    assert end <= steady_by
+    assert st.relaxation_stretch == pytest.approx(beta, abs=0.1)
+    print(f"beta {beta}: steady at t = {end:g} with {100 * to_come / 4:.1f} % to come, "
+          f"fitted beta {st.relaxation_stretch:.2f}")
+
+
 def test_runaway_mixture_still_stops_as_accelerating():
     """Growth x10 (velocity x3.2) is decisive whatever segregation does."""
     t, reason = _segregating_run(growth_to=40.0, seg_tau=600.0)
