@@ -33,9 +33,9 @@ which removes the breathing (dilation) of the whole flow from the signal.  It re
 Why stretched: an approach slower than exponential fools a plain-exponential projection.  On
 series with a known answer (relaxation from 0 to -4 with tau 300, AR(1) noise 0.03, checked
 every 50 time units; ``tests/test_steady_segregation.py``) the exponential projection called
-the state steady with 2.6 % (beta = 1), 6.6 % (beta = 0.7) and 11.5 % (beta = 0.5) of the
-segregation still to come, against the 3.75 % the tolerance allows; the stretched one at
-2.6 %, 3.2 % and 3.5 %, the exponential case at the same time (t = 1100).  The approach is
+the state steady with 2.6 % (beta = 1, t = 1100), 6.6 % (beta = 0.7, t = 1250) and 9.9 %
+(beta = 0.5, t = 1600) of the segregation still to come, against the 3.75 % the tolerance
+allows; the stretched one with 2.6 %, 2.8 % and 3.5 % (t = 1100, 1850, 3350).  The approach is
 measured slower than exponential at the paper's set-up: at 1/sigma = 1.25 two runs started
 above and below the steady profile give exponential extrapolations 10 stderrs apart
 (:data:`granflow.reference.SEGREGATION_PAPER_SETUP`).
