@@ -35,7 +35,7 @@ README_COMMANDS = {
     "bash .ci/setup && .venv/bin/snakemake --cores 2":
         ("tests/test_readme.py::test_campaign_commands_plan_their_runs",
          "dry run (-n) of the default campaign; the full run is benchmarks/time_campaign.py"),
-    "bash .ci/setup && .venv/bin/python -m pytest":
+    "bash .ci/setup && .venv/bin/python -m pytest -n 2 --dist loadfile":
         ("tests/test_readme.py::test_test_command_is_what_ci_runs", "is .ci/run (CI runs it)"),
     ".venv/bin/granflow -v demo --out results/demo":
         ("tests/test_readme.py::test_demo_command", "with --t-end 2, in a scratch directory"),
@@ -249,7 +249,13 @@ def _venv(cmd: str) -> str:
 
 
 def test_test_command_is_what_ci_runs():
-    assert "bash .ci/setup && .venv/bin/python -m pytest" in (REPO / ".ci" / "run").read_text()
+    """The README's test command, line for line, is the last line of .ci/run."""
+    block = [b for h, b in readme_blocks("bash") if "run the tests" in b][0]
+    lines = block.splitlines()
+    cmd = lines[lines.index([x for x in lines if "run the tests" in x][0]) + 1].strip()
+    assert cmd.startswith("bash .ci/setup && .venv/bin/python -m pytest"), cmd
+    ci = [x.strip() for x in (REPO / ".ci" / "run").read_text().splitlines() if x.strip()]
+    assert ci[-1] == cmd, (ci[-1], cmd)
 
 
 def test_demo_command(tmp_path):

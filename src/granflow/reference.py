@@ -330,7 +330,9 @@ SEGREGATION_PAPER_SETUP = {
     },
     # the size-ratio sweep at the same set-up, one run per (1/sigma, seed), each stopped once
     # its segregated state was shown steady: 1/sigma -> [(Ps, stderr, scaled depth h, t at the
-    # stop, CPU seconds)]; law T-eq. 29 with the paper's Pmax 7.35, k 5.21
+    # stop, CPU seconds)]; law T-eq. 29 with the paper's Pmax 7.35, k 5.21.  "Shown steady"
+    # by the exponential projection of the change to come (before 2026-12-07), not re-checked
+    # with the stretched one that replaced it (the runs' series are not kept)
     "sweep": {
         2.0: [(6.821, 0.032, 21.87, 1221.0, 2788.0), (6.811, 0.013, 21.88, 1251.0, 2940.0)],
         1.75: [(7.345, 0.037, 22.11, 1522.0, 3797.0)],
