@@ -251,7 +251,9 @@ def main(argv=None) -> int:
                 ap.error(f"--parent {par}: not the first parent, so it must be a continuation "
                          "whose summary.json names its parent_time")
             times.append(float(tp))
-        pieces = [window_peclets(par, params.get("sigma"), from_checkpoint=args.checkpoint)
+        # --checkpoint is for a run still going: a finished parent is read from its outputs
+        pieces = [window_peclets(par, params.get("sigma"), from_checkpoint=args.checkpoint
+                                 and not (Path(par) / "summary.json").exists())
                   for par in args.parent]
         w = join_chain(pieces + [w], times + [float(t0)])
         print(f"continued from {' -> '.join(args.parent)} (at their t = "
