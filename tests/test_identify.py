@@ -323,7 +323,7 @@ def test_Ps_saturated_over_the_sweep_gives_the_plateau_and_a_lower_bound_on_k(tm
 def test_the_paper_setup_profile_starts_at_1_25_bound_k_as_recorded():
     """The paper's segregation set-up at 1/sigma = 1.25 (granflow.reference.
     SEGREGATION_PAPER_SETUP["bounds"], measured 2026-12-07): two runs started on T-eq. 28's
-    profiles at Ps 3.5 and 7, continued to t = 1678 and 1181 and stopped while their
+    profiles at Ps 3.5 and 7, continued to t = 1975 and 1181 and stopped while their
     segregated state still drifted, each bound the
     steady Ps from the side of its start (the one from 3.5 rose above 3.5: a lower bound; the
     one from 7 fell below 7: an upper bound, granflow.fitting.campaign.approach_side).  With
@@ -350,10 +350,13 @@ def test_the_paper_setup_profile_starts_at_1_25_bound_k_as_recorded():
     assert fit.extra["k_bound_runs_one_sided"] == 2.0
     alone = fit_Ps_law(1 / inv, Ps, se)
     assert alone.extra["k_upper_bound"] == math.inf and got[0] >= alone.extra["k_lower_bound"]
-    # at 1/sigma = 2 the run from above (profile 8.5) bounds the mixed starts from above
+    # at 1/sigma = 2 the run from above (profile 8.5), shown steady, lies above both mixed
+    # starts (also shown steady) by far more than their stderrs: a start-dependent 5.6 %
     (top,) = rec["bounds"][2.0]
-    assert approach_side(top["start"], top["Ps"]) == top["side"] == -1.0
-    assert top["Ps"] > max(r[0] for r in rec["sweep"][2.0])
+    assert approach_side(top["start"], top["Ps"]) == top["side"] == -1.0 and top["steady"]
+    for Ps_mixed, se_mixed, *_ in rec["sweep"][2.0]:
+        assert top["Ps"] - Ps_mixed > 5 * math.hypot(top["stderr"], se_mixed)
+        assert top["Ps"] / Ps_mixed - 1.0 == pytest.approx(0.056, abs=0.002)
 
 
 def test_runs_that_bracket_their_steady_Ps_bound_k_from_both_sides(tmp_path):
