@@ -25,10 +25,10 @@ which removes the breathing (dilation) of the whole flow from the signal.  It re
   whole series after ``min_onset`` (scipy ``curve_fit``; covariance inflated by the
   statistical inefficiency of the residuals) projects the remaining change s(now) - s_inf, and
   it must lie, with its one-sided (1 - ``alpha``) bound, within the same ``rel_tol`` |total| +
-  ``abs_tol``.  Where the stretched fit is not identified the plain exponential (beta = 1) is
-  used; where neither identifies a relaxation (tau at its bound, no finite covariance) the
-  linear drift over the whole series after ``min_onset`` must be shown small instead (a series
-  flat from the start).
+  ``abs_tol``.  Where the stretched fit is not identified, or not needed (beta >= 0.99), the
+  plain exponential (beta = 1) is used; where neither identifies a relaxation (tau at its
+  bound, no finite covariance) the linear drift over the whole series after ``min_onset`` must
+  be shown small instead (a series flat from the start).
 
 Why stretched: an approach slower than exponential fools a plain-exponential projection.  On
 series with a known answer (relaxation from 0 to -4 with tau 300, AR(1) noise 0.03, checked
@@ -156,9 +156,8 @@ def relaxation_projection(t, s, *, alpha: float = SEGREGATION_ALPHA,
     The stretched exponential (0.3 <= beta <= 1, started from the plain exponential's fit) is
     used where both are identified and beta < 0.99, else the plain exponential (beta = 1): an
     approach slower than exponential would otherwise be projected too close to its end (module
-    docstring).  Returns
-    the remaining change s_inf - s_fit(t[-1]) with ``bound`` = |remaining| + z_(1-alpha) x its
-    standard error (delta method on the fit covariance, inflated by the statistical
+    docstring).  Returns the remaining change s_inf - s_fit(t[-1]) with ``bound`` = |remaining|
+    + z_(1-alpha) x its standard error (delta method on the fit covariance, inflated by the statistical
     inefficiency of the residuals, which are serially correlated).  tau is bounded to
     [span / 200, 50 span]; a tau at its upper bound, or no finite covariance, means the series
     identifies no relaxation: then the change to come is taken as the linear drift over the
@@ -192,8 +191,8 @@ def relaxation_projection(t, s, *, alpha: float = SEGREGATION_ALPHA,
                        (None if p_exp is None else np.append(p_exp, 1.0), cov_exp, ok_exp)):
         if not ok:
             continue
-        f = _stretched if p.size == 4 and cov.shape[0] == 4 else _relax
-        resid = s - f(x, *p[:cov.shape[0]])
+        n = cov.shape[0]  # 4: stretched, 3: exponential (p padded with beta = 1)
+        resid = s - (_stretched if n == 4 else _relax)(x, *p[:n])
         cov = cov * max(statistical_inefficiency(resid), 1.0)
         tau, beta = float(math.exp(p[2])), float(p[3])
         u = (span / tau) ** beta
@@ -201,10 +200,10 @@ def relaxation_projection(t, s, *, alpha: float = SEGREGATION_ALPHA,
         remaining = -float(p[1]) * decay  # s_inf - s_fit(now)
         # d remaining / d (s_inf, a, log tau[, beta])
         jac = np.array([0.0, -decay, remaining * beta * u,
-                        -remaining * u * math.log(span / tau)])[:cov.shape[0]]
+                        -remaining * u * math.log(span / tau)])[:n]
         se = math.sqrt(max(float(jac @ cov @ jac), 0.0))
         if math.isfinite(se):
-            kind = (f"stretched relaxation tau {tau:.3g}, beta {beta:.2f}" if cov.shape[0] == 4
+            kind = (f"stretched relaxation tau {tau:.3g}, beta {beta:.2f}" if n == 4
                     else f"relaxation tau {tau:.3g}")
             return Relaxation(remaining, abs(remaining) + z * se, tau, float(p[0]), True,
                               f"{kind}, s_inf {p[0]:.3g}", beta)
