@@ -231,22 +231,21 @@ def test_slow_percolation_is_not_steady_until_its_projected_change_is_small():
     assert late.relaxation_time == pytest.approx(200.0, rel=0.25)
 
 
-@pytest.mark.parametrize("beta,steady_by", [(1.0, 1100.0), (0.7, 2200.0), (0.5, 3550.0)])
+@pytest.mark.parametrize("beta,steady_by", [(1.0, 1100.0), (0.7, 2000.0), (0.5, 4150.0)])
 def test_an_approach_slower_than_exponential_is_not_called_steady_early(beta, steady_by):
     """Known answer: s relaxes from 0 to -4 as exp(-(t / 300)^beta) (AR(1) noise 0.03,
     samples every 2, checked every 50).  At the first steady verdict the change truly still
     to come is within the tolerance (3 % of the total + 0.03 = 3.75 % of it), whatever the
     stretch; an exponential projection alone called beta = 0.7 and 0.5 steady with 6.6 % and
-    9.9 % to come (at t = 1250 and 1600).  Now: 3.0 %, 2.6 % and 3.3 % at t = 1050, 1900 and
-    3500 for beta = 1, 0.7 and 0.5, with the fitted stretch within 0.05 of the true one.  (The
+    9.9 % to come (at t = 1250 and 1600).  Now: 2.6 %, 2.5 % and 2.5 % at t = 1100, 1950 and
+    4100 for beta = 1, 0.7 and 0.5, with the fitted stretch within 0.05 of the true one.  (The
     stretched fit from the first sample after the start-up, t = 20, instead of the run's start
-    biased beta to 0.60 for 0.5; with the tolerance scaled by the plateau it then called beta =
-    0.5 steady at t = 3000 with 4.2 % to come.)"""
+    biased beta to 0.60 for 0.5 and the change to come 25 % low: steady at t = 3350 with 3.5 %.)"""
     rng = np.random.default_rng(3)
-    t = np.arange(0.0, 3600.0, 2.0)
+    t = np.arange(0.0, 4400.0, 2.0)
     true = -4.0 * (1.0 - np.exp(-(t / 300.0) ** beta))
     s = true + _ar1(t.size, rng, phi=math.exp(-0.2), scale=0.03)
-    for end in np.arange(300.0, 3600.0, 50.0):
+    for end in np.arange(300.0, 4400.0, 50.0):
         k = t <= end
         st = segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0)
         if st.steady:
@@ -267,38 +266,34 @@ def test_runaway_mixture_still_stops_as_accelerating():
     assert t < 500.0
 
 
-def _relaxing(seed=3, tau=150.0, end=3000.0):
-    """s from 0 (mixed) to -4 as exp(-t / tau), AR(1) noise 0.03, samples every 2."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(0.0, end, 2.0)
-    true = -4.0 * (1.0 - np.exp(-t / tau))
-    return t, true, true + _ar1(t.size, rng, phi=math.exp(-0.2), scale=0.03)
-
-
-def _first_steady(t, s, t0, averaging_time=200.0):
-    for end in np.arange(t0 + averaging_time, t[-1], 50.0):
-        k = (t >= t0) & (t <= end)
-        st = segregation_steadiness(t[k], s[k], averaging_time=averaging_time, min_onset=t0 + 20.0)
+def test_a_continuation_of_a_slow_approach_is_judged_on_its_own_change_not_the_plateau():
+    """A slow approach as at the paper's set-up (s from 0 to -4 as exp(-(t / 500)^0.8), AR(1)
+    noise 0.04) continued from t = 1500 of its parent (7.6 % still to come; the clock restarts
+    at 0, the parent's history unseen).  The tolerance scales with the change since the run's
+    own start, so a continuation is judged conservatively: first shown steady 1950 units in,
+    with 0.9 % truly to come (its mixed start: t = 2350, 3.2 %).  Scaled by the plateau (tried
+    2026-12-07 to judge both sides of a bracket alike) the short series identifies no slow
+    relaxation and its projection passed 300 units in, with 6.2 % still to come (3.75 %
+    allowed); on the paper set-up's continuations it called series still rising steady."""
+    rng = np.random.default_rng(1)
+    t = np.arange(0.0, 4000.0, 1.0)
+    true = -4.0 * (1.0 - np.exp(-(t / 500.0) ** 0.8))
+    s = true + _ar1(t.size, rng, phi=math.exp(-0.5), scale=0.04)
+    cont = t >= 1500.0
+    tc, sc, truec = t[cont] - 1500.0, s[cont], true[cont]
+    first = None
+    for end in np.arange(200.0, tc[-1], 50.0):
+        k = tc <= end
+        st = segregation_steadiness(tc[k], sc[k], averaging_time=200.0, min_onset=20.0)
+        if end == 300.0:  # the plateau-scaled tolerance would have passed its projection here
+            assert st.remaining_bound <= 0.03 * abs(st.plateau) + 0.03
+            assert abs(truec[k][-1] + 4.0) > 0.06 * 4.0
+            assert not st.steady
         if st.steady:
-            return end, st
-    return math.inf, st
-
-
-def test_a_run_started_near_its_steady_state_is_held_to_the_standard_of_a_mixed_start():
-    """The verdict must not depend on where a run started (bracketing from above and below).
-    The same relaxation (0 -> -4, tau 150), judged from its mixed start and as a continuation
-    started at t = 600 (1.8 % still to come): they are shown steady at t = 800 and 850, where
-    0.5 % and 0.3 % are truly still to come.  The rule before 2026-12-07 scaled the tolerance by
-    the change since the run's own start (about 0 for the continuation), so the continuation's
-    bound then had to be within 0.03 + 3 % of ~0.05, which it is not."""
-    t, true, s = _relaxing()
-    mixed_at, mixed = _first_steady(t, s, 0.0)
-    cont_at, cont = _first_steady(t, s, 600.0)
-    assert mixed_at == 800.0 and cont_at == 850.0, (mixed_at, cont_at)
-    assert abs(true[t <= cont_at][-1] + 4.0) <= 0.03 * 4.0 + 0.03  # the verdict is right
-    assert abs(cont.total) < 0.1  # almost no change since its own start ...
-    assert cont.remaining_bound > 0.03 + 0.03 * abs(cont.total)  # ... so the old rule said no
-    assert cont.remaining_bound <= 0.03 + 0.03 * abs(cont.plateau)
+            first = end
+            break
+    assert first == 1950.0, first
+    assert abs(truec[tc <= first][-1] + 4.0) <= 0.01 * 4.0
 
 
 def test_a_drift_too_slow_to_show_a_relaxation_is_judged_over_the_whole_series():
