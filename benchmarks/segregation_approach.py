@@ -26,6 +26,7 @@ fits the mean profile of the last windows.  The series Ps(t) then says
         [--parent PARENT [--parent-time T]]   # a continuation (simulate --from): the
                                               # parent's windows first, this run's after T
         [--parent P0 --parent P1 ...]         # a chain of continuations, oldest first
+        [--verdicts]   # the steady detector (this code's rule) replayed on series.nc
 
 A run continued with ``granflow simulate --from STATE`` (same inclination, clock reset to 0)
 is one approach in two pieces: ``--parent`` (the parent's run folder, read like RUN_DIR, or a
@@ -208,6 +209,34 @@ def approach(t, Ps, *, t_from: float = -math.inf, last: int = 4) -> dict:
     return out
 
 
+def detector_verdicts(run, every: float = 50.0, averaging_time: float | None = None) -> list:
+    """The steady detector's verdict replayed on a run's recorded indicator s(t)
+    (``series.nc``: ``segregation_indicator``) at every ``every`` time units, by the rule of
+    *this* code (:func:`granflow.steady.segregation.segregation_steadiness`, the run's own
+    ``averaging_time`` and start-up ``steady_min_onset``): how a rule change would have judged
+    a run already made.  The detector sees one run: a continuation's parents are not joined.
+    Returns dicts (t, steady, plateau, total, remaining, remaining_bound, message)."""
+    import xarray as xr
+
+    from granflow.steady.segregation import segregation_steadiness
+
+    with xr.open_dataset(Path(run) / "series.nc") as ds:
+        t = np.asarray(ds["segregation_time"].values, dtype=float)
+        s = np.asarray(ds["segregation_indicator"].values, dtype=float)
+        min_onset = float(ds.attrs.get("steady_min_onset", 0.0))
+        if averaging_time is None:
+            averaging_time = float(json.loads(ds.attrs["config_json"])["averaging_time"])
+    out = []
+    for end in np.arange(float(t[0]) + averaging_time, float(t[-1]) + 1e-9, every):
+        k = t <= end
+        st = segregation_steadiness(t[k], s[k], averaging_time=averaging_time,
+                                    min_onset=min_onset)
+        out.append({"t": float(end), "steady": bool(st.steady), "plateau": st.plateau,
+                    "total": st.total, "remaining": st.remaining,
+                    "remaining_bound": st.remaining_bound, "message": st.message})
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run_dir")
@@ -227,6 +256,9 @@ def main(argv=None) -> int:
     ap.add_argument("--parent-time", type=float, default=None,
                     help="the parent's time at the state this run continued from (default: "
                          "parent_time in this run's summary.json)")
+    ap.add_argument("--verdicts", action="store_true",
+                    help="also replay the steady detector (this code's rule) on the run's "
+                         "recorded indicator every 50 time units (series.nc)")
     args = ap.parse_args(argv)
     if args.last < 2:
         ap.error(f"--last = {args.last} is out of range: allowed >= 2")
@@ -264,6 +296,17 @@ def main(argv=None) -> int:
     print("   t_start   Ps (T-eq. 28)  fit stderr   depth s - b")
     for a, p, s, d in zip(w["t_start"], w["Ps"], w["Ps_stderr"], w["depth"]):
         print(f"  {a:8.1f}   {p:12.4f}  {s:10.4f}   {d:10.3f}")
+    verdicts = None
+    if args.verdicts:
+        verdicts = detector_verdicts(run)
+        first = next((v for v in verdicts if v["steady"]), None)
+        print("detector replayed on this run's indicator (this code's rule):")
+        print("   t      steady   plateau s   change to come   95 % bound")
+        for v in verdicts:
+            print(f"  {v['t']:7.1f}  {str(v['steady']):6s}  {v['plateau']:9.4f}  "
+                  f"{v['remaining']:+14.4f}  {v['remaining_bound']:11.4f}")
+        print("first shown steady at t = "
+              + (f"{first['t']:g} (plateau s {first['plateau']:.4f})" if first else "never"))
     try:
         res = approach(w["t_mid"], w["Ps"], t_from=args.t_from, last=args.last)
     except ValueError as exc:
@@ -285,7 +328,7 @@ def main(argv=None) -> int:
             {"run": str(run), "params": params,
              "parent": args.parent,
              "windows": {k: v.tolist() for k, v in w.items() if k != "window"},
-             "window": w["window"], "approach": res}, indent=1))
+             "window": w["window"], "approach": res, "verdicts": verdicts}, indent=1))
     return 0
 
 

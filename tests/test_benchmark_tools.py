@@ -787,3 +787,44 @@ def test_segregation_approach_joins_a_continuation_to_its_parent_on_the_parents_
         sa.main([str(last), "--parent", str(middle), "--parent", str(first)])
     with pytest.raises(FileNotFoundError, match="the run has finished"):
         sa.window_peclets(child, from_checkpoint=True)
+
+
+def test_segregation_approach_replays_the_steady_detector_on_a_recorded_indicator(tmp_path):
+    """``--verdicts`` (``detector_verdicts``): a series.nc whose indicator relaxes from 0 to
+    -4 with tau 150 (AR(1) noise 0.03, samples every 2; the run's averaging_time 200 and
+    start-up 20 read from its attributes) is judged every 50 units by this code's rule: not
+    steady while the change truly to come exceeds the tolerance (3 % of the total + 0.03),
+    first steady at t = 800 (0.5 % to come), the same verdicts as the detector on the same
+    samples."""
+    import xarray as xr
+
+    from granflow.steady.segregation import segregation_steadiness
+
+    sa = _load("segregation_approach")
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 1200.0, 2.0)
+    true = -4.0 * (1.0 - np.exp(-t / 150.0))
+    noise = np.zeros(t.size)
+    e = rng.normal(0.0, 0.03 * math.sqrt(1 - math.exp(-0.4)), t.size)
+    for i in range(1, t.size):
+        noise[i] = math.exp(-0.2) * noise[i - 1] + e[i]
+    s = true + noise
+    run = tmp_path / "run"
+    run.mkdir()
+    xr.Dataset({"segregation_indicator": ("segregation_time", s)},
+               coords={"segregation_time": t},
+               attrs={"steady_min_onset": 20.0,
+                      "config_json": json.dumps({"averaging_time": 200.0})}
+               ).to_netcdf(run / "series.nc")
+    got = sa.detector_verdicts(run)
+    assert [v["t"] for v in got] == list(np.arange(200.0, 1150.0 + 1e-9, 50.0))
+    first = next(v for v in got if v["steady"])
+    assert first["t"] == 800.0
+    for v in got:
+        to_come = abs(true[t <= v["t"]][-1] + 4.0)
+        if to_come > 0.03 * 4.0 + 0.03:
+            assert not v["steady"], v
+    k = t <= 600.0
+    direct = segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0)
+    v600 = next(v for v in got if v["t"] == 600.0)
+    assert v600["steady"] == direct.steady and v600["plateau"] == direct.plateau
