@@ -309,3 +309,29 @@ def test_a_drift_too_slow_to_show_a_relaxation_is_judged_over_the_whole_series()
     assert st.remaining == pytest.approx(-0.02 * (t[-1] - 20.0) / 200.0, rel=0.1)
     assert not st.steady
     assert abs(st.drift) + 0.0 <= 0.03 * 4.0 + 0.03  # per window it is inside the band
+
+
+@pytest.mark.xfail(strict=True, reason="known limitation (2026-12-07): a slow mode under a fast "
+                   "start-up transient; the one-relaxation projection fits the fast one")
+def test_a_slow_mode_under_a_fast_start_up_transient_is_not_called_steady_early():
+    """Known limitation, as seen at the paper's set-up: a run started above its steady state
+    (1/sigma = 1.25, profile start) first rearranges fast, then relaxes slowly the other way
+    (s -4.25 at t = 300, -4.07 by t = 1180); replayed with ``segregation_approach.py
+    --verdicts`` it is shown steady at t = 300 on a tau = 21 relaxation fit (change to come
+    1e-7 +- 0) and not again.  Synthetic: s = -4.25 - 0.3 exp(-t/20) + 0.2 (1 - exp(-t/500)),
+    AR(1) noise 0.04: seed 4 is called steady at t = 450 with 0.081 still to come, against a
+    tolerance of 0.035 (2 of 6 seeds are called steady early; the stretched fit, beta at its
+    bound 0.3, keeps 2 others from it).  The single (stretched) relaxation cannot see a second,
+    slower mode that the noise hides; a start from a mixed state has no fast mode of the
+    opposite sign."""
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 1500.0, 1.0)
+    true = -4.25 - 0.3 * np.exp(-t / 20.0) + 0.2 * (1.0 - np.exp(-t / 500.0))
+    s = true + _ar1(t.size, rng, phi=math.exp(-0.5), scale=0.04)
+    for end in np.arange(250.0, 1500.0, 50.0):
+        k = t <= end
+        st = segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=34.0)
+        if st.steady:
+            to_come = abs(-4.05 - true[k][-1])  # s_inf = -4.25 + 0.2
+            assert to_come <= 0.03 * abs(st.total) + 0.03, (end, to_come)
+            break
