@@ -173,7 +173,7 @@ def _curve_fit(f, x, s, p0, lower, upper):
 
 def relaxation_projection(t, s, *, alpha: float = SEGREGATION_ALPHA,
                           origin: float | None = None) -> Relaxation:
-    """Fit s(t) = s_inf + a exp(-((t - t[0]) / tau)^beta) and project the change still to come.
+    """Fit s(t) = s_inf + a exp(-((t - origin) / tau)^beta) and project the change still to come.
 
     The stretched exponential (0.3 <= beta <= 1, started from the plain exponential's fit) is
     used where both are identified and beta < 0.99, else the plain exponential (beta = 1): an
