@@ -310,7 +310,9 @@ def main(argv=None) -> int:
     try:
         res = approach(w["t_mid"], w["Ps"], t_from=args.t_from, last=args.last)
     except ValueError as exc:
+        # too few windows for an approach: the windows (and verdicts) are still written
         print(f"no approach fitted: {exc}")
+        write_json(args.json, run, params, args.parent, w, {"error": str(exc)}, verdicts)
         return 0
     kind = "lower" if res["side"] > 0 else "upper"
     print(f"approach from {'below' if res['side'] > 0 else 'above'}: Ps {res['Ps_first']:.3f} "
@@ -323,13 +325,18 @@ def main(argv=None) -> int:
               f"change still to come {res['remaining']:+.3f} (95 % bound {res['remaining_bound']:.3f})")
     else:
         print(f"no relaxation identified ({res['how']})")
-    if args.json:
-        Path(args.json).write_text(json.dumps(
-            {"run": str(run), "params": params,
-             "parent": args.parent,
-             "windows": {k: v.tolist() for k, v in w.items() if k != "window"},
-             "window": w["window"], "approach": res, "verdicts": verdicts}, indent=1))
+    write_json(args.json, run, params, args.parent, w, res, verdicts)
     return 0
+
+
+def write_json(path, run, params, parent, w, approach_result, verdicts):
+    """The windows, the approach (or why there is none) and the verdicts, to ``path``."""
+    if not path:
+        return
+    Path(path).write_text(json.dumps(
+        {"run": str(run), "params": params, "parent": parent,
+         "windows": {k: v.tolist() for k, v in w.items() if k != "window"},
+         "window": w["window"], "approach": approach_result, "verdicts": verdicts}, indent=1))
 
 
 if __name__ == "__main__":

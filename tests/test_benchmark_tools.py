@@ -696,6 +696,15 @@ def test_segregation_approach_recovers_window_peclets_and_the_plateau_they_appro
         sa.approach(t[:5], Ps[:5])
     with pytest.raises(SystemExit):
         sa.main([str(run), "--last", "1"])
+    # too few windows for an approach: --json still holds the windows, and says why there is
+    # no approach (it used to return before writing the file)
+    short = tmp_path / "short"
+    short.mkdir()
+    _approach_profiles(short, t[:3], Ps[:3])
+    assert sa.main([str(short), "--json", str(tmp_path / "short.json")]) == 0
+    got = json.loads((tmp_path / "short.json").read_text())
+    np.testing.assert_allclose(got["windows"]["Ps"], Ps[:3], rtol=1e-4)
+    assert "windows after t_from" in got["approach"]["error"]
     # a finished bidisperse run: profiles.nc holds the last windows only, profiles_history.nc
     # every window, and the tool reads the latter
     (run / "profiles.nc").rename(run / "profiles_history.nc")
