@@ -837,3 +837,26 @@ def test_segregation_approach_replays_the_steady_detector_on_a_recorded_indicato
     direct = segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0)
     v600 = next(v for v in got if v["t"] == 600.0)
     assert v600["steady"] == direct.steady and v600["plateau"] == direct.plateau
+
+
+def test_segregation_detector_calibration_replays_the_detector_on_known_answers():
+    """benchmarks/segregation_detector_calibration.py: on the mixed-start known answer (0 -> -4
+    with tau 300) the first steady verdicts of seeds 0 and 1 come at t = 1150 and 1200 with
+    0.087 and 0.073 truly to come, inside the detector's tolerance (0.138, 0.139): not early
+    (20 seeds: 0 early, measured 2026-12-07).  The same verdict as the detector itself."""
+    from granflow.steady.segregation import segregation_steadiness
+
+    cal = _load("segregation_detector_calibration")
+    for seed, t_first, come in ((0, 1150.0, 0.0865), (1, 1200.0, 0.0733)):
+        r = cal.first_verdict("mixed", seed)
+        assert r["t"] == t_first and not r["early"], r
+        assert r["to_come"] == pytest.approx(come, abs=5e-4)
+        # 3 % of the change seen since the start-up (t >= 20: about 3.6) + 0.03
+        assert r["tolerance"] == pytest.approx(0.138, abs=0.002)
+    t_end, dt, min_onset, phi, noise, s_inf, true_of = cal.CASES["mixed"]
+    t = np.arange(0.0, t_end, dt)
+    s = true_of(t) + cal.ar1(t.size, np.random.default_rng(1000), phi, noise)
+    k = t <= 1150.0
+    assert segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0).steady
+    k = t <= 1100.0
+    assert not segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0).steady
