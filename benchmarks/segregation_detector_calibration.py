@@ -42,26 +42,17 @@ CASES = {
 }
 
 
-def ar1(n, rng, phi, scale):
-    """AR(1) noise of stationary standard deviation ``scale``, started at 0."""
-    x = np.empty(n)
-    x[0] = 0.0
-    e = rng.normal(0.0, scale * math.sqrt(1.0 - phi ** 2), n)
-    for i in range(1, n):
-        x[i] = phi * x[i - 1] + e[i]
-    return x
-
-
 def first_verdict(case: str, seed: int, check_every: float = 50.0,
                   averaging_time: float = 200.0) -> dict:
     """The detector's first steady verdict on one known-answer series (seed ``1000 + seed``)."""
     from granflow.steady.segregation import segregation_steadiness
+    from granflow.steady.timeseries import ar1_noise
 
     t_end, dt, min_onset, phi, noise, s_inf, true_of = CASES[case]
     rng = np.random.default_rng(1000 + seed)
     t = np.arange(0.0, t_end, dt)
     true = true_of(t)
-    s = true + ar1(t.size, rng, phi, noise)
+    s = true + ar1_noise(t.size, rng, phi, noise)
     for end in np.arange(250.0, t_end, check_every):
         k = t <= end
         st = segregation_steadiness(t[k], s[k], averaging_time=averaging_time,

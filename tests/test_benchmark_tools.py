@@ -855,7 +855,9 @@ def test_segregation_detector_calibration_replays_the_detector_on_known_answers(
         assert r["tolerance"] == pytest.approx(0.138, abs=0.002)
     t_end, dt, min_onset, phi, noise, s_inf, true_of = cal.CASES["mixed"]
     t = np.arange(0.0, t_end, dt)
-    s = true_of(t) + cal.ar1(t.size, np.random.default_rng(1000), phi, noise)
+    from granflow.steady.timeseries import ar1_noise
+
+    s = true_of(t) + ar1_noise(t.size, np.random.default_rng(1000), phi, noise)
     k = t <= 1150.0
     assert segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0).steady
     k = t <= 1100.0

@@ -9,15 +9,11 @@ import pytest
 
 from granflow.engine.chute import ChuteConfig
 from granflow.steady.segregation import SegregationMonitor, segregation_steadiness
+from granflow.steady.timeseries import ar1_noise
 
 
 def _ar1(n, rng, phi=0.8, scale=0.02):
-    x = np.empty(n)
-    x[0] = 0.0
-    e = rng.normal(0.0, scale * math.sqrt(1 - phi**2), n)
-    for i in range(1, n):
-        x[i] = phi * x[i - 1] + e[i]
-    return x
+    return ar1_noise(n, rng, phi, scale)
 
 
 def test_relaxation_to_plateau_is_steady_with_onset_near_the_true_one():

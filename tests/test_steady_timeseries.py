@@ -121,3 +121,14 @@ def test_trend_test_degenerate_input():
     assert res.p_value == 1.0 and np.isnan(res.slope)
     with pytest.raises(ValueError):
         trend_test(np.ones(10), np.arange(5))
+
+
+def test_ar1_noise_has_its_stationary_scale_and_statistical_inefficiency():
+    """The known-answer noise model: standard deviation ``scale`` and g = (1 + phi) / (1 - phi)
+    (9 at phi = 0.8) on a long series."""
+    from granflow.steady.timeseries import ar1_noise, statistical_inefficiency
+
+    x = ar1_noise(200_000, np.random.default_rng(5), 0.8, 0.02)
+    assert x[0] == 0.0
+    assert np.std(x) == pytest.approx(0.02, rel=0.02)
+    assert statistical_inefficiency(x) == pytest.approx(9.0, rel=0.1)

@@ -39,6 +39,7 @@ __all__ = [
     "TrendResult",
     "trend_test",
     "curvature_test",
+    "ar1_noise",
 ]
 
 #: Lags always included in the g sum before a non-positive C(t) may stop it (pymbar: mintime=3).
@@ -307,3 +308,15 @@ def curvature_test(x, t=None, *, method: str = "inflate") -> TrendResult:
     :func:`trend_test`).  A significantly negative c on a rising series means the growth is levelling
     off (spin-up towards a plateau), not a flow that keeps accelerating."""
     return _poly_test(x, t, 2, method)
+
+
+def ar1_noise(n: int, rng, phi: float, scale: float) -> np.ndarray:
+    """AR(1) noise x_i = phi x_(i-1) + e_i of stationary standard deviation ``scale``, started
+    at 0 (statistical inefficiency (1 + phi) / (1 - phi)): the noise model of the known-answer
+    series the steady detectors are tested and calibrated on."""
+    x = np.empty(n)
+    x[0] = 0.0
+    e = rng.normal(0.0, scale * math.sqrt(1 - phi**2), n)
+    for i in range(1, n):
+        x[i] = phi * x[i - 1] + e[i]
+    return x
