@@ -347,23 +347,24 @@ SEGREGATION_PAPER_SETUP = {
             "k_lower_bound": 3.005,
             # with the two one-sided runs of "bounds" at 1/sigma = 1.25 (fit_Ps_law's
             # k_interval, 95 % jointly)
-            "k_interval_with_bounds": (5.623, 8.810)},
+            "k_interval_with_bounds": (6.095, 8.810)},
     # runs stopped while their segregated state still drifted, each a one-sided bound on its
     # steady Ps (2026-12-07, seed 1, one core each on a 2-vCPU Zen 3 host): at 1/sigma = 1.25,
     # started on T-eq. 28's profiles at Ps 3.5 and 7 (start~profile3.5, start~profile7), run to
     # t = 477 and 478 (4103 and 4081 s of CPU), then continued from their final states
     # (granflow simulate --from, same inclination, early_stop false): the profile3.5 run four
-    # times, for 600, 600, 297 and 700 time units (to t = 2674.7, 9708 + 4149 + 2080 + ~5430 s
-    # of CPU in all; the fourth read from its checkpoint at t = 700.1 while it goes on), the
+    # times, for 600, 600, 297 and 1044 time units (to t = 3018.8, 9708 + 4149 + 2080 + 8632 s
+    # of CPU in all; the fourth read from its checkpoint at t = 1044.2 while it goes on), the
     # profile7 run twice, for 600 and 103.3 (to t = 1181.0, 9716 + 744 s); Ps and its stderr
     # over the last 200 time units (the mean and standard error of the chain's last four
     # 50-unit windows, benchmarks/segregation_approach.py with --parent; until 2026-12-07 noon
     # the profile3.5 bound was the campaign row's, 5.129 +- 0.035 at t = 1974.6); side +1 a
     # lower bound, -1 an upper bound.  The bracket was [4.079 +- 0.038, 6.324 +- 0.062] at
-    # t = 477, [4.507, 5.831] at t = 1077, [5.129, 5.807] at t = 1975, and is [5.395, 5.807]:
+    # t = 477, [4.507, 5.831] at t = 1077, [5.129, 5.807] at t = 1975, [5.395, 5.807] at
+    # t = 2675, and is [5.559, 5.807]:
     # the profile3.5 run rose 4.58 -> 4.98 over its second continuation, 5.01 -> 5.22 over its
-    # third and 5.22 -> 5.44 over its fourth (5.31-5.38 for t = 2073-2573, then 5.40, 5.44:
-    # slowing, not stopped), the profile7 run fell 6.97 -> 5.80, by 0.01 per 50 units at the
+    # third and 5.22 -> 5.54 over its fourth (5.31-5.38 for t = 2073-2573, 5.40-5.45 to
+    # t = 2773, then 5.52, 5.56, 5.56, 5.57, 5.54: slowing, not stopped), the profile7 run fell 6.97 -> 5.80, by 0.01 per 50 units at the
     # end.  The paper's law gives 5.35 here: the run from below has passed it.  Exponential relaxations fitted to the two series disagreed
     # at t = 1077 (4.77 +- 0.06 rising, 5.60 +- 0.06 falling); a stretched one (the steady
     # detector's since 2026-12-07) gave 5.08 +- 0.90 (beta 0.81) and 5.27 +- 0.69 (beta 0.78)
@@ -375,14 +376,23 @@ SEGREGATION_PAPER_SETUP = {
     # Ps 7.205 +- 0.018 over its last 200 units (t = 1099.5), while the two mixed starts of
     # "sweep" were shown steady at 6.821 and 6.811: two states 5.6 % apart that each pass the
     # steady test, so a single run's steady Ps carries a start-dependent error of that size
-    # (the paper's law gives 7.31 here, 1.5 % above the run from above)
+    # (the paper's law gives 7.31 here, 1.5 % above the run from above).  Rerun under today's
+    # detector the seed-1 mixed start stops later (t = 1350.5, 8362 s of CPU) at 6.886 +-
+    # 0.009, still 4.6 % below the run from above: the gap narrows, it does not close
     "bounds": {
-        1.25: [dict(start="profile3.5", Ps=5.395, stderr=0.016, side=1.0, t_end=2674.7,
-                    cpu_s=21370.0),
+        1.25: [dict(start="profile3.5", Ps=5.559, stderr=0.006, side=1.0, t_end=3018.8,
+                    cpu_s=24572.0),
                dict(start="profile7", Ps=5.807, stderr=0.006, side=-1.0, t_end=1181.0,
                     cpu_s=10460.0)],
         2.0: [dict(start="profile8.5", Ps=7.205, stderr=0.018, side=-1.0, t_end=1099.5,
-                   cpu_s=6502.0, steady=True)],
+                   cpu_s=6502.0, steady=True),
+              # the sweep's seed-1 mixed start rerun under the detector of 2026-12-07
+              # (early_stop true; the same trajectory up to the sweep's stop at t = 1221: its
+              # windows there average 6.821, the old run's value): shown steady at t = 1350.5 (s plateau -4.27, change to
+              # come 0.073 within 0.107); windows 6.84, 6.89, 6.90, 6.89, 6.86 over
+              # t = 1100-1350; continued with early_stop false in results/seg-mixed2-continue
+              dict(start="mixed", Ps=6.886, stderr=0.009, side=1.0, t_end=1350.5,
+                   cpu_s=8362.0, steady=True)],
     },
 }
 
