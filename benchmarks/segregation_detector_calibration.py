@@ -45,7 +45,8 @@ CASES = {
 def first_verdict(case: str, seed: int, check_every: float = 50.0,
                   averaging_time: float = 200.0) -> dict:
     """The detector's first steady verdict on one known-answer series (seed ``1000 + seed``)."""
-    from granflow.steady.segregation import segregation_steadiness
+    from granflow.steady.segregation import (SEGREGATION_ABS_TOL, SEGREGATION_REL_TOL,
+                                             segregation_steadiness)
     from granflow.steady.timeseries import ar1_noise
 
     t_end, dt, min_onset, phi, noise, s_inf, true_of = CASES[case]
@@ -59,7 +60,7 @@ def first_verdict(case: str, seed: int, check_every: float = 50.0,
                                     min_onset=min_onset)
         if st.steady:
             to_come = abs(s_inf - float(true[k][-1]))
-            tol = 0.03 * abs(st.total) + 0.03
+            tol = SEGREGATION_REL_TOL * abs(st.total) + SEGREGATION_ABS_TOL
             return {"case": case, "seed": seed, "t": float(end), "to_come": to_come,
                     "tolerance": tol, "early": bool(to_come > tol)}
     return {"case": case, "seed": seed, "t": math.nan, "to_come": math.nan,

@@ -364,8 +364,8 @@ SEGREGATION_PAPER_SETUP = {
     # t = 2675, and is [5.559, 5.807]:
     # the profile3.5 run rose 4.58 -> 4.98 over its second continuation, 5.01 -> 5.22 over its
     # third and 5.22 -> 5.54 over its fourth (5.31-5.38 for t = 2073-2573, 5.40-5.45 to
-    # t = 2773, then 5.52, 5.56, 5.56, 5.57, 5.54: slowing, not stopped), the profile7 run fell 6.97 -> 5.80, by 0.01 per 50 units at the
-    # end.  The paper's law gives 5.35 here: the run from below has passed it.  Exponential relaxations fitted to the two series disagreed
+    # t = 2773, then 5.52, 5.56, 5.56, 5.57, 5.54: slowing, not stopped), the profile7 run
+    # fell 6.97 -> 5.80, by 0.01 per 50 units at the end.  The paper's law gives 5.35 here: the run from below has passed it.  Exponential relaxations fitted to the two series disagreed
     # at t = 1077 (4.77 +- 0.06 rising, 5.60 +- 0.06 falling); a stretched one (the steady
     # detector's since 2026-12-07) gave 5.08 +- 0.90 (beta 0.81) and 5.27 +- 0.69 (beta 0.78)
     # then; the rising series since rose nearly linearly and extrapolates to nothing useful
@@ -390,8 +390,8 @@ SEGREGATION_PAPER_SETUP = {
                    cpu_s=6502.0, steady=True),
               # the sweep's seed-1 mixed start rerun under the detector of 2026-12-07
               # (early_stop true; the same trajectory up to the sweep's stop at t = 1221: its
-              # windows there average 6.821, the old run's value): shown steady at t = 1350.5 (s plateau -4.27, change to
-              # come 0.073 within 0.107); windows 6.84, 6.89, 6.90, 6.89, 6.86 over
+              # windows there average 6.821, the old run's value): shown steady at t = 1350.5
+              # (s plateau -4.27, change to come 0.073 within 0.107); windows 6.84, 6.89, 6.90, 6.89, 6.86 over
               # t = 1100-1350; continued with early_stop false in results/seg-mixed2-continue
               dict(start="mixed", Ps=6.886, stderr=0.009, side=1.0, t_end=1350.5,
                    cpu_s=8362.0, steady=True)],
