@@ -353,7 +353,7 @@ def test_the_paper_setup_profile_starts_at_1_25_bound_k_as_recorded():
     # at 1/sigma = 2 the run from above (profile 8.5), shown steady, lies above both mixed
     # starts (also shown steady) by far more than their stderrs: a start-dependent 5.6 %;
     # the seed-1 mixed start rerun under today's detector stops later, still 4.6 % below
-    top, rerun = rec["bounds"][2.0]
+    top, rerun, continued = rec["bounds"][2.0]
     assert approach_side(top["start"], top["Ps"]) == top["side"] == -1.0 and top["steady"]
     for Ps_mixed, se_mixed, *_ in rec["sweep"][2.0]:
         assert top["Ps"] - Ps_mixed > 5 * math.hypot(top["stderr"], se_mixed)
@@ -362,6 +362,12 @@ def test_the_paper_setup_profile_starts_at_1_25_bound_k_as_recorded():
     assert max(Ps for Ps, *_ in rec["sweep"][2.0]) < rerun["Ps"] < top["Ps"]
     assert top["Ps"] - rerun["Ps"] > 5 * math.hypot(top["stderr"], rerun["stderr"])
     assert top["Ps"] / rerun["Ps"] - 1.0 == pytest.approx(0.046, abs=0.002)
+    # continued past its verdict the mixed start rose on (a lower bound, not steady), the gap
+    # to the run from above down to 3.4 %
+    assert continued["start"] == "mixed" and continued["side"] == 1.0
+    assert not continued["steady"] and continued["t_end"] > rerun["t_end"]
+    assert rerun["Ps"] < continued["Ps"] < top["Ps"]
+    assert top["Ps"] / continued["Ps"] - 1.0 == pytest.approx(0.034, abs=0.002)
 
 
 def test_runs_that_bracket_their_steady_Ps_bound_k_from_both_sides(tmp_path):
