@@ -20,7 +20,7 @@ from granflow.fitting import (FitResult, Ps_teq29, campaign_table_from_records, 
 from granflow.fitting.identify import (CORRELATION_LIMIT, assess, heldout_limit,
                                        heldout_zscores, intrinsic_scatter)
 from granflow.fitting.result import (bootstrap_stderr_range, bootstrap_summary,
-                                     bootstrap_undecided)
+                                     bootstrap_undecided, data_bound)
 from granflow.steady.timeseries import standard_error_of_mean
 from granflow.units import RHO_PARTICLE
 
@@ -94,6 +94,55 @@ def test_bootstrap_decisions_are_left_undecided_only_near_their_limits():
     assert s["refits"] == 400 and s["at_bound_fraction"]["p"] == pytest.approx(45 / 400)
     lo, hi = s["at_bound_fraction_range"]["p"]
     assert lo < 45 / 400 < hi < 0.15865
+
+
+def test_a_parameter_limited_by_an_optimiser_bound_gets_the_bound_the_data_give():
+    """Known answer: 30 % of the refits at an optimiser bound at 0, the rest N(15, 2).  The
+    data bound the parameter from above only, by the 95th percentile of all refits; mirrored,
+    from below by the 5th; below the 15.9 % threshold there is no one-sided bound, and with
+    more than 95 % at the bound the data bound it from neither side."""
+    rng = np.random.default_rng(0)
+    x = rng.normal(15.0, 2.0, 1000)
+    ab = np.arange(1000) < 300
+    x[ab] = 0.0
+    up = data_bound(x, ab)
+    assert up["side"] == "upper" and up["value"] == pytest.approx(np.quantile(x, 0.95), rel=1e-12)
+    # 5 % of all refits above it = 7.1 % of the N(15, 2) ones: 15 + 1.47 x 2
+    assert up["value"] == pytest.approx(17.9, abs=0.3)
+    low = data_bound(30.0 - x, ab)
+    assert low["side"] == "lower" and low["value"] == pytest.approx(30.0 - up["value"], rel=1e-9)
+    assert data_bound(x, np.arange(1000) < 100) is None
+    assert math.isnan(data_bound(x, np.arange(1000) < 960)["value"])
+    s = bootstrap_summary(np.column_stack([x, rng.normal(0, 1, 1000)]), ["p", "q"],
+                          np.column_stack([ab, np.zeros(1000, bool)]))
+    assert set(s["data_bound"]) == {"p"} and s["data_bound"]["p"] == up
+
+
+def test_default_campaign_hstop_says_what_bound_the_data_give_delta1(tmp_path):
+    """The default campaign's eight brackets (7ff1f4d on a Zen 3 host, 2026-12-07: H = 1.5 ...
+    16 at lambda = 1, two thick heights with no arrest seen) leave delta1 at its optimiser
+    bound 0 in ~30 % of the refits: unidentified, and its 12.4 +- 9.0 is the bound's, not the
+    data's.  What the data do show is an upper bound, delta1 <= 19.3 (the refits' 95th
+    percentile): it is in the parameter's reason and in the library, and it lies below the
+    thick brackets' flowing angles (delta1 <= theta_stop(H) at every H)."""
+    iv = pd.DataFrame({"H": [1.5, 2.0, 3.0, 5.0, 8.0, 10.0, 13.0, 16.0],
+                       "theta_arrested_max": [27.03, 28.1, 27.14, 24.71, 22.55, -np.inf, 21.6,
+                                              -np.inf],
+                       "theta_flowing_min": [27.53, 28.6, 27.64, 25.21, 23.05, 24.0, 22.1, 26.0]})
+    r = fit_hstop(iv, lam=1.0, contact_law="linear", n_bootstrap=200, seed=0)
+    assert r.param_status["delta1"] == "unidentified"
+    b = r.extra["bootstrap"]["data_bound"]["delta1"]
+    assert b["side"] == "upper" and 0.2 < b["at_bound_fraction"] < 0.4
+    ens = r.ensemble_array()[:, 0]
+    assert b["value"] == pytest.approx(np.quantile(ens[np.isfinite(ens)], 0.95), rel=1e-12)
+    assert r.params["delta1"] < b["value"] < 22.1
+    assert b["value"] == pytest.approx(19.34, abs=0.3)
+    assert f"delta1 <= {b['value']:.4g} (95 % one-sided" in r.param_reason["delta1"]
+    lib = gc.open_library(gc.write_library(tmp_path, "bound", [r]))
+    got = lib["hstop_delta1_data_upper_bound"].sel(contact_law="linear", **{"lambda": 1.0})
+    assert float(got) == pytest.approx(b["value"], rel=1e-12)
+    assert lib["hstop_delta1_data_upper_bound"].attrs["units"] == "degree"
+    assert "hstop_delta1_data_lower_bound" not in lib
 
 
 def test_hstop_identifiability_does_not_depend_on_the_bootstrap_seed():

@@ -29,7 +29,7 @@ import xarray as xr
 
 from .. import cfconventions
 from .. import units as U
-from ..fitting.result import FitResult
+from ..fitting.result import DATA_BOUND_LEVEL, FitResult
 from ..fitting.table import COLUMN_ATTRS, STRING_COLUMNS, validate_campaign_table
 from ..provenance import atomic_to_netcdf, provenance_attrs
 from ..fitting.identify import CRITERION, assess
@@ -148,6 +148,9 @@ def _closure_variables(results, default_contact_law):
         diag = {k: np.full(shape, np.nan) for k in ("heldout_max_abs_z", "chi2_dof",
                                                      "birge_ratio")}
         between = {p: np.full(shape, np.nan) for p in spec.params}
+        # one-sided bounds the data give parameters an optimiser bound limits on the other side
+        data_lo = {p: np.full(shape, np.nan) for p in spec.params}
+        data_hi = {p: np.full(shape, np.nan) for p in spec.params}
         heldout_json = np.full(shape, "{}", dtype=object)
         ens = {}
         rmin = {v: np.full(shape, np.nan) for v in spec.ranges}
@@ -186,6 +189,9 @@ def _closure_variables(results, default_contact_law):
             if d.get("dof"):
                 diag["chi2_dof"][idx] = d.get("chi2", np.nan) / d["dof"]
             diag["birge_ratio"][idx] = d.get("birge_ratio", np.nan)
+            for p, b in ((r.extra.get("bootstrap") or {}).get("data_bound") or {}).items():
+                if p in data_lo and b and math.isfinite(b.get("value", math.nan)):
+                    (data_hi if b["side"] == "upper" else data_lo)[p][idx] = b["value"]
             for p, parts in (d.get("uncertainty_split") or {}).items():
                 if p in between:
                     between[p][idx] = parts.get("between", np.nan)
@@ -253,6 +259,14 @@ def _closure_variables(results, default_contact_law):
                     U.DIMENSIONLESS, f"share of the variance of {kind} parameter {p} from the "
                     "scatter between seeds (replicates; the rest is within-run)",
                     closure_kind=kind))
+        for p, (units, long_name) in spec.params.items():
+            for side, arr in (("lower", data_lo[p]), ("upper", data_hi[p])):
+                if np.isfinite(arr).any():
+                    data_vars[f"{kind}_{p}_data_{side}_bound"] = (dims, arr, U.cf(
+                        units, f"one-sided {100 * DATA_BOUND_LEVEL:g} % {side} bound on "
+                        f"{long_name} that the data give where an optimiser bound limits it on "
+                        "the other side (bootstrap percentile; NaN: the data bound it from "
+                        "both sides or from neither)", closure_kind=kind, parameter=p))
         data_vars[f"{kind}_heldout_max_abs_z"] = (dims, diag["heldout_max_abs_z"], U.cf(
             U.DIMENSIONLESS, f"largest held-out (leave-one-out) |z| of the {kind} closure",
             closure_kind=kind))

@@ -12,6 +12,10 @@ size ratio) as these variables, every one with CF ``units`` and ``long_name``:
   ``<kind>_message``, ``<kind>_selection`` (which runs entered and why others did not);
 * ``<kind>_<param>_status`` / ``_reason`` -- identified, unidentified, fixed or not_in_form, and
   why (:mod:`granflow.fitting.identify`);
+* ``<kind>_<param>_data_lower_bound`` / ``_data_upper_bound`` (only where some fit has one) --
+  the one-sided 95 % bound the data give a parameter whose bootstrap refits an optimiser bound
+  limits on the other side (:func:`granflow.fitting.result.data_bound`): its value and stderr
+  are then the bound's, not the data's, and this is what the data do show;
 * ``<kind>_ensemble_<param>`` (dim ``sample``) -- bootstrap refits or covariance draws, from
   which evaluators compute the uncertainty of an evaluated closure;
 * ``<kind>_heldout_max_abs_z``, ``<kind>_chi2_dof``, ``<kind>_birge_ratio`` -- fit diagnostics;

@@ -173,6 +173,20 @@ def correlation_matrix(result: FitResult, names: Sequence[str]):
     return r
 
 
+def _data_bound_text(name: str, bound: dict | None) -> str:
+    """', name <= v (95 % one-sided, ...)' for the reason of a parameter an optimiser bound
+    limits on one side (:func:`granflow.fitting.result.data_bound`); '' without one."""
+    if not bound:
+        return ""
+    pct = 100 * bound["level"]
+    if not math.isfinite(bound["value"]):
+        return (f": not even that (more than {pct:g} % of the refits at the bound; the data "
+                "bound it from neither side)")
+    op, q = ("<=", pct) if bound["side"] == "upper" else (">=", 100 - pct)
+    return (f": {name} {op} {bound['value']:.4g} ({pct:g} % one-sided, the refits' "
+            f"{q:g}th percentile)")
+
+
 def assess_parameters(result: FitResult, free: Sequence[str] | None = None,
                       fixed: dict | None = None) -> tuple[dict, dict]:
     """Per-parameter (status, reason) dicts of a fit; see the module docstring.
@@ -229,7 +243,8 @@ def assess_parameters(result: FitResult, free: Sequence[str] | None = None,
         if frac is not None and math.isfinite(frac) and frac > BOOTSTRAP_BOUND_FRACTION:
             why.append(f"at an optimiser bound in {100 * frac:.1f} % of {boot.get('refits')} "
                        f"bootstrap refits (> {100 * BOOTSTRAP_BOUND_FRACTION:.1f} %): the bound, "
-                       "not the data, sets its stderr; the data limit it on one side only")
+                       "not the data, sets its stderr; the data limit it on one side only"
+                       + _data_bound_text(n, (boot.get("data_bound") or {}).get(n)))
         elif (frac is not None and math.isfinite(f_range[1])
               and f_range[1] > BOOTSTRAP_BOUND_FRACTION):
             why.append(f"at an optimiser bound in {100 * frac:.1f} % of {boot.get('refits')} "

@@ -204,6 +204,39 @@ def bootstrap_cap(requested: int) -> int:
 #: the few brackets a parameter rests on -- about exp(-k) of them for k brackets -- which the
 #: percentile stderr is meant to be robust to; they are reported, not judged.)
 BOOTSTRAP_BOUND_FRACTION = 0.15865
+#: level of the one-sided bound the data give a parameter that an optimiser bound limits on
+#: its other side (:func:`data_bound`)
+DATA_BOUND_LEVEL = 0.95
+
+
+def data_bound(samples, at_bound_rows, level: float = DATA_BOUND_LEVEL) -> dict | None:
+    """The one-sided bound the data give a parameter whose bootstrap refits sit at an
+    optimiser bound in more than :data:`BOOTSTRAP_BOUND_FRACTION` of cases (None otherwise).
+
+    The refits at the bound mark the side the optimiser, not the data, limits: where they lie
+    below the others the data bound the parameter from above only, by the ``level`` quantile
+    of all refits (those at the bound included: they are the resamples that push it there), and
+    conversely.  Returns ``{"side": "upper" | "lower", "value": v, "level": level,
+    "at_bound_fraction": f}``; ``value`` NaN when more than ``level`` of the refits sit at the
+    bound (the data bound it from neither side).
+    """
+    x = np.asarray(samples, dtype=float).ravel()
+    ab = np.asarray(at_bound_rows, dtype=bool).ravel()
+    ok = np.isfinite(x)
+    x, ab = x[ok], ab[ok]
+    if x.size == 0 or not ab.any():
+        return None
+    frac = float(ab.mean())
+    if frac <= BOOTSTRAP_BOUND_FRACTION:
+        return None
+    rest = x[~ab]
+    low_side = bool(rest.size == 0 or np.median(x[ab]) <= np.median(rest))
+    side = "upper" if low_side else "lower"
+    if frac > level:
+        value = math.nan
+    else:
+        value = float(np.quantile(x, level if low_side else 1.0 - level))
+    return {"side": side, "value": value, "level": float(level), "at_bound_fraction": frac}
 
 
 def _quantile_rank_range(n: int, q: float, z: float) -> tuple[int, int]:
@@ -297,5 +330,8 @@ def bootstrap_summary(samples, names, at_bound_rows=None, requested: int | None 
         out["at_bound_fraction_range"] = {n: [float(v) for v in _wilson(int(ab[:, j].sum()),
                                                                        ab.shape[0])]
                                           for j, n in enumerate(names)}
+        bounds = {n: data_bound(arr[:, j], ab[:, j]) for j, n in enumerate(names)
+                  if ab.shape[0] == arr.shape[0]}
+        out["data_bound"] = {n: b for n, b in bounds.items() if b is not None}
     return out
 
