@@ -14,6 +14,13 @@ fits the mean profile of the last windows.  The series Ps(t) then says
   segregated start from above (Ps falls, the sharp interface broadening), so the last
   windows' Ps is a one-sided bound on the steady value (what the campaign fit uses for a
   ``drifting`` run, :func:`granflow.fitting.segregation.fit_Ps_law`'s ``one_sided``);
+* whether the windows have stopped moving: over the last ``--flat-windows`` windows the
+  linear trend (:func:`granflow.steady.timeseries.trend_test`, serial correlation allowed for)
+  must change Ps by less than ``FLAT_REL_TOL`` of its mean, with its 90 % interval (an
+  equivalence test, as the steady detector's).  A flat tail is then a plateau this start has
+  reached (its mean and standard error a measurement of it), not only a bound -- unless
+  something slower is still to come, which no tail can exclude (two starts on flat tails 5 %
+  apart at 1/sigma = 1.25 of the paper's set-up, 2026-12-07);
 * and, as an *extrapolation* (not a measurement), the plateau of a (stretched) exponential
   relaxation Ps(t) = Ps_inf + a exp(-((t - t_1) / tau)^beta) fitted to the windows after
   ``--t-from``
@@ -169,6 +176,43 @@ def parent_time_of(run) -> float | None:
     return json.loads(f.read_text()).get("parent", {}).get("parent_time")
 
 
+#: a tail is flat when the 90 % interval of its fitted change lies within this fraction of its
+#: mean Ps (Ps moves about twice as much, relatively, as the detector's indicator s, whose
+#: tolerance is 3 % of the change since the start: granflow.steady.segregation)
+FLAT_REL_TOL = 0.02
+#: windows of the tail the flatness test uses (500 time units of 50-unit windows)
+FLAT_WINDOWS = 10
+
+
+def flat_tail(t, Ps, *, windows: int = FLAT_WINDOWS, rel_tol: float = FLAT_REL_TOL,
+              alpha: float = 0.05) -> dict:
+    """Whether the last ``windows`` windows of Ps(t) have stopped moving (module docstring).
+
+    Returns ``flat`` (the (1 - 2 alpha) interval of the fitted change over the tail within
+    +- ``rel_tol`` x its mean), ``change`` and ``change_stderr`` (slope x span and its
+    serial-correlation-corrected standard error), ``p_value`` of the trend, ``mean`` and
+    ``sem`` (spread / sqrt(n)) over the tail, ``t_from`` and ``span``."""
+    from granflow.steady.timeseries import trend_test
+    from scipy import stats
+
+    t, Ps = np.asarray(t, dtype=float), np.asarray(Ps, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(Ps)
+    t, Ps = t[ok][-windows:], Ps[ok][-windows:]
+    if t.size < max(windows, 4):
+        raise ValueError(f"{t.size} windows: the flatness test needs {max(windows, 4)}")
+    tr = trend_test(Ps, t)
+    span = float(t[-1] - t[0])
+    change, se = float(tr.slope * span), float(tr.stderr * span)
+    half = float(stats.t.ppf(1.0 - alpha, max(tr.dof, 1.0))) * se
+    mean = float(Ps.mean())
+    tol = rel_tol * abs(mean)
+    flat = bool(math.isfinite(change) and math.isfinite(half) and abs(change) + half <= tol)
+    return {"flat": flat, "change": change, "change_stderr": se, "tolerance": tol,
+            "p_value": float(tr.p_value), "mean": mean,
+            "sem": float(Ps.std(ddof=1) / math.sqrt(Ps.size)), "t_from": float(t[0]),
+            "span": span, "windows": int(t.size)}
+
+
 def approach(t, Ps, *, t_from: float = -math.inf, last: int = 4) -> dict:
     """What the series Ps(t) says about its steady value.
 
@@ -243,6 +287,8 @@ def main(argv=None) -> int:
     ap.add_argument("--t-from", type=float, default=100.0,
                     help="windows starting before this are left out of the approach fit")
     ap.add_argument("--last", type=int, default=4, help="windows of the one-sided bound")
+    ap.add_argument("--flat-windows", type=int, default=FLAT_WINDOWS,
+                    help="windows of the tail whose flatness is tested")
     ap.add_argument("--json", help="write the series and the approach to this file")
     ap.add_argument("--checkpoint", action="store_true",
                     help="every window so far from the run's checkpoint.npz (a run still going, "
@@ -318,6 +364,20 @@ def main(argv=None) -> int:
     print(f"approach from {'below' if res['side'] > 0 else 'above'}: Ps {res['Ps_first']:.3f} "
           f"-> {res['Ps_last']:.3f} +- {res['Ps_last_sem']:.3f} over the last {args.last} "
           f"windows (t >= {res['t_last_from']:g}): a one-sided ({kind}) bound on the steady Ps")
+    try:
+        flat = flat_tail(w["t_mid"], w["Ps"], windows=args.flat_windows)
+    except ValueError as exc:
+        flat = {"error": str(exc)}
+        print(f"no flatness test: {exc}")
+    else:
+        print(f"tail of {flat['windows']} windows (t >= {flat['t_from']:g}): change "
+              f"{flat['change']:+.3f} +- {flat['change_stderr']:.3f} (trend p = "
+              f"{flat['p_value']:.2g}), "
+              + (f"flat (90 % within +-{flat['tolerance']:.3f}): a plateau this start has "
+                 f"reached, Ps = {flat['mean']:.3f} +- {flat['sem']:.3f}" if flat["flat"] else
+                 f"not shown flat within +-{flat['tolerance']:.3f}: still moving, or too "
+                 "noisy to tell"))
+    res["flat_tail"] = flat
     if res["identified"]:
         print(f"extrapolated (relaxation fit, t >= {args.t_from:g}): Ps_inf = "
               f"{res['Ps_inf']:.3f} +- {res['Ps_inf_stderr']:.3f}, tau = {res['tau']:.4g}, beta = "

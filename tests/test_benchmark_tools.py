@@ -714,6 +714,32 @@ def test_segregation_approach_recovers_window_peclets_and_the_plateau_they_appro
     np.testing.assert_allclose(w["Ps"], Ps, rtol=1e-4)
 
 
+def test_segregation_approach_tells_a_flat_tail_from_one_still_moving():
+    """Known answers for the flatness test of the last ten windows: a relaxation long over
+    (tau 300, 2000 units in) with AR(1) noise of 0.02 is flat, its tail mean within 2 sem of
+    the plateau; the same relaxation 600 units in (Ps still rising by ~0.3 over the tail) is
+    not; a linear creep of 1 % per 100 units is not; pure noise of 0.2 on 5 (the interval
+    too wide to show anything) is not."""
+    from granflow.steady.timeseries import ar1_noise
+
+    sa = _load("segregation_approach")
+    rng = np.random.default_rng(7)
+    t = 25.0 + 50.0 * np.arange(60)
+    noise = ar1_noise(t.size, rng, 0.3, 0.02)
+    relax = 5.5 - 2.0 * np.exp(-t / 300.0) + noise
+    done = sa.flat_tail(t, relax)
+    assert done["flat"] and done["windows"] == 10 and done["span"] == 450.0
+    assert abs(done["mean"] - 5.5) < 2 * done["sem"] + 1e-3
+    early = sa.flat_tail(t[:12], relax[:12])
+    assert not early["flat"] and early["change"] > 0.2
+    creep = sa.flat_tail(t, 5.0 * (1.0 + 1e-4 * t) + noise)
+    assert not creep["flat"] and creep["p_value"] < 0.01
+    noisy = sa.flat_tail(t, 5.0 + ar1_noise(t.size, rng, 0.3, 0.2))
+    assert not noisy["flat"]
+    with pytest.raises(ValueError, match="flatness test needs 10"):
+        sa.flat_tail(t[:5], relax[:5])
+
+
 def test_segregation_approach_reads_every_window_so_far_from_a_checkpoint(tmp_path):
     """``--checkpoint``: the windows of the profile observer's state in a run's checkpoint.npz
     (keys ``extra__obs__profiles__*``) give the same per-window fields as the accumulator that
