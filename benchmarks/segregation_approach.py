@@ -17,10 +17,13 @@ fits the mean profile of the last windows.  The series Ps(t) then says
 * whether the windows have stopped moving: over the last ``--flat-windows`` windows the
   linear trend (:func:`granflow.steady.timeseries.trend_test`, serial correlation allowed for)
   must change Ps by less than ``FLAT_REL_TOL`` of its mean, with its 90 % interval (an
-  equivalence test, as the steady detector's).  A flat tail is then a plateau this start has
-  reached (its mean and standard error a measurement of it), not only a bound -- unless
-  something slower is still to come, which no tail can exclude (two starts on flat tails 5 %
-  apart at 1/sigma = 1.25 of the paper's set-up, 2026-12-07);
+  equivalence test, as the steady detector's).  A flat tail is a pause at least, not a
+  proof of a plateau: at 1/sigma = 1.25 of the paper's set-up (2026-12-07) the run from above
+  was flat at 5.83 over 550 time units and then fell to 5.66 within 150, the run from below
+  rose to 5.59 and fell back to 5.39 (its 200-unit means scatter by 0.07, ten times the
+  standard error of one such mean from its four windows): Ps wanders by 0.1-0.2 over hundreds
+  of time units, so a tail's mean +- sem understates what it knows, and a "bound" from the
+  last windows holds only to that wander;
 * and, as an *extrapolation* (not a measurement), the plateau of a (stretched) exponential
   relaxation Ps(t) = Ps_inf + a exp(-((t - t_1) / tau)^beta) fitted to the windows after
   ``--t-from``
@@ -373,8 +376,9 @@ def main(argv=None) -> int:
         print(f"tail of {flat['windows']} windows (t >= {flat['t_from']:g}): change "
               f"{flat['change']:+.3f} +- {flat['change_stderr']:.3f} (trend p = "
               f"{flat['p_value']:.2g}), "
-              + (f"flat (90 % within +-{flat['tolerance']:.3f}): a plateau this start has "
-                 f"reached, Ps = {flat['mean']:.3f} +- {flat['sem']:.3f}" if flat["flat"] else
+              + (f"flat (90 % within +-{flat['tolerance']:.3f}) at Ps = {flat['mean']:.3f} "
+                 f"+- {flat['sem']:.3f}: a plateau or a pause (Ps can wander by 0.1-0.2 over "
+                 "hundreds of time units)" if flat["flat"] else
                  f"not shown flat within +-{flat['tolerance']:.3f}: still moving, or too "
                  "noisy to tell"))
     res["flat_tail"] = flat
