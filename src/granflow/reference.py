@@ -347,14 +347,14 @@ SEGREGATION_PAPER_SETUP = {
             "k_lower_bound": 3.005,
             # with the two one-sided runs of "bounds" at 1/sigma = 1.25 (fit_Ps_law's
             # k_interval, 95 % jointly)
-            "k_interval_with_bounds": (5.309, 9.772),
+            "k_interval_with_bounds": (5.129, 9.661),
             # T-eq. 29 fitted to every start's latest reading (2026-12-07 evening): the seed-2
             # mixed start of "sweep" at 2, the seed-1 mixed start continued (bounds[2.0][2]),
             # the run from above at 2, the 1.75 and 1.5 runs, and both starts at 1.25 with
             # their tail means +- wander (bounds[1.25]); runs weighted by their stderrs,
-            # Birge-inflated (9.6x): Pmax 5.0 % below the paper's 7.35 (z -3.9), k agrees
-            # (z +0.9, +29 %) with a 25 % stderr
-            "all_starts": {"Pmax": (6.980, 0.095), "k": (6.711, 1.690)}},
+            # Birge-inflated (9.6x): Pmax 5.1 % below the paper's 7.35 (z -3.9), k agrees
+            # (z +0.9, +30 %) with a 26 % stderr
+            "all_starts": {"Pmax": (6.979, 0.095), "k": (6.751, 1.760)}},
     # runs stopped while their segregated state still drifted, each a one-sided bound on its
     # steady Ps (2026-12-07, seed 1, one core each on a 2-vCPU Zen 3 host): at 1/sigma = 1.25,
     # started on T-eq. 28's profiles at Ps 3.5 and 7 (start~profile3.5, start~profile7), run to
@@ -392,21 +392,23 @@ SEGREGATION_PAPER_SETUP = {
     # starts meet is not decided
     "bounds": {
         # the evening of 2026-12-07 both runs were continued again (the profile3.5 run to
-        # t = 3874, the profile7 run to t = 1824): neither approach is monotone.  The run from
-        # below rose to 5.59 (t = 3100) and fell back to 5.34 (t = 3849); the run from above,
-        # flat at 5.80-5.87 for 550 units, fell to 5.65-5.72 (t = 1500-1800); the indicator s
-        # moved with Ps (-3.85 -> -3.98 -> -3.92), u_bar did not: the segregated state itself
-        # wanders by 0.1-0.2 in Ps over hundreds of time units.  So the last four windows'
-        # mean +- sem (the bounds above: 5.559 +- 0.006 at t = 3019) are not bounds beyond
-        # that wander; recorded now: each run's mean since it reached its level (t >= 2799
-        # and t >= 903: 22 and 19 windows), stderr the standard deviation of its 200-unit
-        # means (5 and 4 blocks; not divided by their number: the wander outlasts a block).
-        # The paper's 5.35 lies inside the run from below's range (5.34-5.59), 0.3-0.6 below
-        # the run from above's (5.65-5.87)
-        1.25: [dict(start="profile3.5", Ps=5.490, stderr=0.099, side=1.0, t_end=3874.0,
-                    cpu_s=33023.0),
-               dict(start="profile7", Ps=5.779, stderr=0.074, side=-1.0, t_end=1824.0,
-                    cpu_s=16815.0)],
+        # t = 4021, the profile7 run to t = 1965): neither approach is monotone.  The run from
+        # below rose to 5.59 (t = 3100) and fell back to 5.22-5.28 (t = 3874-4021); the run
+        # from above, flat at 5.80-5.87 for 550 units, fell to 5.65-5.77 (t = 1500-1965); the
+        # indicator s moved with Ps (-3.85 -> -3.98 -> -3.92), u_bar did not: the segregated
+        # state itself wanders by 0.1-0.4 in Ps over hundreds of time units.  So the last four
+        # windows' mean +- sem (the bounds above: 5.559 +- 0.006 at t = 3019) are not bounds
+        # beyond that wander; recorded now: each run's mean since it reached its level
+        # (t >= 2799 and t >= 903: 24 and 21 50-unit windows), stderr the standard deviation of
+        # its 200-unit means (6 and 5 blocks: 5.56, 5.58, 5.54, 5.44, 5.36, 5.27 and 5.81, 5.84,
+        # 5.78, 5.66, 5.72; not divided by their number: the wander outlasts a block).  The
+        # paper's 5.35 lies inside the run from below's range (5.22-5.59), 0.3-0.5 below the
+        # run from above's (5.65-5.87).  (Read 2026-12-07 20:10 from the runs' last checkpoints;
+        # until then 5.490 +- 0.099 to t = 3874 and 5.779 +- 0.074 to t = 1824.)
+        1.25: [dict(start="profile3.5", Ps=5.459, stderr=0.123, side=1.0, t_end=4021.0,
+                    cpu_s=34510.0),
+               dict(start="profile7", Ps=5.768, stderr=0.071, side=-1.0, t_end=1965.0,
+                    cpu_s=18210.0)],
         2.0: [dict(start="profile8.5", Ps=7.205, stderr=0.018, side=-1.0, t_end=1099.5,
                    cpu_s=6502.0, steady=True),
               # the sweep's seed-1 mixed start rerun under the detector of 2026-12-07
