@@ -195,6 +195,13 @@ def test_default_campaign_covers_every_closure():
     for t in (text, reductions_vs_paper(deep)):
         assert ("Ps / depth = 0.308-0.314 per d over windows 19.9-24.0 d deep, so 1 d of depth "
                 "moves Ps by 4.6 %") in t and "scaled by 23.5 d" in t, t
+    # ... and, with one run per size ratio, that its Ps stderr omits the scatter between seeds,
+    # with the scatter measured at the default set-up (3 seeds at sigma = 0.9: 9.4x)
+    assert ("sigma = 0.9: 3 seeds scatter by 0.54 against their own stderrs 0.057 (9.4x)"
+            in text), text
+    reps = copy.deepcopy(cfg)
+    reps["campaigns"]["segregation"].setdefault("numerics", {})["replicates"] = 3
+    assert "one run per size ratio" not in reductions_vs_paper(reps)
     # ... a softer species carries the bias measured against it (F at 23 deg: 0.1761 vs 0.1250)
     soft = dict(cfg, species=dict(cfg["species"], t_c=0.02))
     text = reductions_vs_paper(soft)
@@ -781,7 +788,8 @@ def test_global_numerics_shadowed_by_the_defaults_campaign_block_are_named():
     default = load("config.yaml")
     for name in ["reference-lambda1.yaml", "reference-lambda-half.yaml",
                  "reference-segregation.yaml", "weinhart2012.yaml", "continuum-soft.yaml",
-                 "replicates.yaml", "segregation-sweep.yaml", "test-tiny.yaml"]:
+                 "replicates.yaml", "replicates-segregation.yaml", "segregation-sweep.yaml",
+                 "test-tiny.yaml"]:
         assert shadowed_numerics(merged("config.yaml", name), default) == [], name
     user = {"numerics": {"t_end": 6000.0, "averaging_time": 200.0, "skin": 0.1}}
     cfg = merged("config.yaml")
@@ -930,6 +938,14 @@ def test_a_Ps_still_rising_over_its_windows_is_not_called_steady(tmp_path):
     fit, _, _ = segregation_fit(tmp_path / "r", 0.75, "linear", window=100.0)
     assert fit.extra["Ps_trend_change"] == pytest.approx(0.22, abs=0.03)
     assert fit.extra["Ps_trend_p"] < 0.01 and ps_still_moving(fit.extra)
+    # such a run's fit is drifting too, and its per-run Ps is not the ratio's steady value
+    from granflow.campaign.collect import count_as_drifting
+    from granflow.campaign.fits import assess_segregation_runs
+
+    assert assess_segregation_runs([fit])[0].ok
+    moving = assess_segregation_runs([count_as_drifting(fit)])[0]
+    assert moving.extra["segregation_state"] == "drifting" and not moving.ok
+    assert moving.param_status["Ps"] == "unidentified" and "drifting" in moving.selection
     flat = 9.0 + 0.3 * np.random.default_rng(3).standard_normal(11)
     (tmp_path / "f").mkdir()
     _profiles_with_Ps(tmp_path / "f" / "profiles.nc", flat, noise=0.01)

@@ -81,3 +81,64 @@ def test_fit_reports_the_split_per_parameter():
     for p in ("d0", "d1"):
         assert split[p]["within"] + split[p]["between"] == pytest.approx(1.0, abs=1e-9)
         assert split[p]["between"] == pytest.approx(0.8, abs=1e-6)  # 0.01^2 / (0.01^2+0.005^2)
+
+
+def _profile_fit(Ps, sigma, run, sem, noise_seed):
+    """A per-run T-eq. (28) fit of an exact profile at Ps (a little noise), as
+    granflow.campaign.collect.segregation_fit tags it: run name, steady segregated state,
+    the stderr of its windows' mean."""
+    from granflow.fitting import assess, fit_Ps, phi_teq28
+
+    z = np.linspace(0.0, 1.0, 41)
+    phi = phi_teq28(z, Ps, 0.5) + np.random.default_rng(noise_seed).normal(0, 1e-3, z.size)
+    f = fit_Ps(z, phi, 0.5, sigma=sigma, contact_law="linear")
+    f = f.replace(stderr={"Ps": sem}, runs_used=(run,),
+                  extra=dict(f.extra, segregation_state="steady", scaled_depth=7.0))
+    return assess(f)
+
+
+def test_runs_at_one_size_ratio_become_one_library_value_with_their_spread(tmp_path):
+    """Replicates at one size ratio used to stop the library ("two segregation fits for the
+    same coordinates").  Three runs at sigma = 0.6 with Ps 5.0, 5.6, 6.2 (spread 0.6) and own
+    errors 0.05 give Ps 5.6 with stderr 0.6 / sqrt(3), not the runs' 0.05 / sqrt(3); three at
+    0.75 that agree better than their errors (4.00, 4.01, 4.02, errors 0.2) keep the errors:
+    0.2 / sqrt(3); an unidentified run is left out of the mean and named; a ratio with one run
+    is that run's fit, unchanged."""
+    import granflow.closures as gc
+    from granflow.fitting import campaign_table_from_records, combine_Ps_runs
+    from granflow.fitting.segregation import fit_Ps_law
+
+    fits = [_profile_fit(p, 0.6, f"s06/seed~{k}", 0.05, k) for k, p in enumerate((5.0, 5.6, 6.2))]
+    fits += [_profile_fit(p, 0.75, f"s075/seed~{k}", 0.2, 10 + k)
+             for k, p in enumerate((4.0, 4.01, 4.02))]
+    bad = _profile_fit(9.0, 0.75, "s075/seed~9", 0.2, 20)
+    fits.append(bad.replace(ok=False, status="unidentified"))
+    one = _profile_fit(2.0, 0.9, "s09", 0.1, 30)
+    fits.append(one)
+    out = combine_Ps_runs(fits)
+    assert [f.coords["sigma"] for f in out] == [0.6, 0.75, 0.9]
+    a, b, c = out
+    assert a.params["Ps"] == pytest.approx(5.6, abs=2e-3)
+    assert a.stderr["Ps"] == pytest.approx(0.6 / math.sqrt(3), rel=0.01)
+    assert a.extra["Ps_between_run_sd"] == pytest.approx(0.6, rel=0.01)
+    assert a.extra["Ps_within_run_sem"] == pytest.approx(0.05 / math.sqrt(3))
+    half = float(__import__("scipy").stats.t.ppf(0.975, 2)) * a.stderr["Ps"]
+    assert a.extra["ci95"] == pytest.approx((a.params["Ps"] - half, a.params["Ps"] + half))
+    assert a.ok and a.param_status["Ps"] == "identified" and a.extra["runs_combined"] == 3
+    assert b.params["Ps"] == pytest.approx(4.01, abs=2e-3) and b.extra["runs_combined"] == 3
+    assert b.stderr["Ps"] == pytest.approx(0.2 / math.sqrt(3))
+    assert "s075/seed~9" in b.message and "s075/seed~9" not in b.runs_used
+    assert c.params == one.params and c.stderr == one.stderr
+    assert "within-run only" in c.selection and "not measured" in c.selection
+    table = campaign_table_from_records([
+        dict(theta=25.0, H=8.0, lam=1.0, sigma=s, contact_law="linear", state="steady", Ps=p,
+             run_id=f"r{i}") for i, (s, p) in enumerate(((0.6, 5.6), (0.75, 4.01), (0.9, 2.0)))])
+    law = fit_Ps_law([0.6, 0.75, 0.9], [5.6, 4.01, 2.0], contact_law="linear")
+    ds = gc.build_library_dataset(out + [law], table, name="rep", version=1)
+    sel = dict(contact_law="linear")
+    assert ds["segregation_Ps"].sel(sel).values.tolist() == [f.params["Ps"] for f in out]
+    assert ds["segregation_Ps_stderr"].sel(sel).values[0] == pytest.approx(0.6 / math.sqrt(3),
+                                                                           rel=0.01)
+    assert ds["segregation_runs_combined"].sel(sel).values[:2].tolist() == [3, 3]
+    assert math.isnan(float(ds["segregation_runs_combined"].sel(sel).values[2]))
+    assert ds["segregation_Ps_between_run_sd"].attrs["units"] == "1"

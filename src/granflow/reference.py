@@ -426,6 +426,51 @@ SEGREGATION_PAPER_SETUP = {
 }
 
 
+# Seeds at the default campaign's segregation set-up (config/config.yaml merged with
+# config/replicates-segregation.yaml: 10 x 5 box, filling height 8, 25 deg, the paper's
+# species, mixed starts, early stop, cap t = 1500; three insertion seeds per ratio; run
+# 2026-12-07 on a 2-vCPU AMD EPYC Zen 3 host, code of 0801f5b, 31.6 min on 2 cores, 7379 time
+# units in 9 runs): sigma -> [(Ps, its within-run stderr (the standard error of its profile
+# windows' mean), segregated state, t at the stop)], seed 1, 2, 3.  The seed-1 runs are the
+# default campaign's own (the same numbers).  "drifting": the centre of mass was shown steady
+# while Ps still moved over the windows (a lower bound after a mixed start).  Where the runs are
+# steady they scatter 2.0x (sigma 0.6) and 9.4x (sigma 0.9) more than their own stderrs say.
+SEGREGATION_DEFAULT_REPLICATES = {
+    0.6: [(14.023, 0.685, "drifting", 581.0), (14.206, 0.713, "steady", 381.0),
+          (16.233, 0.689, "steady", 331.0)],
+    0.75: [(8.966, 0.228, "drifting", 771.0), (12.642, 1.270, "steady", 641.0),
+           (11.112, 0.239, "drifting", 791.0)],
+    0.9: [(3.904, 0.029, "steady", 1421.0), (4.952, 0.026, "steady", 1311.0),
+          (4.216, 0.091, "steady", 1151.0)],
+}
+
+
+def segregation_seed_scatter() -> dict:
+    """sigma -> (steady runs, their standard deviation, rms of their within-run stderrs,
+    ratio) of :data:`SEGREGATION_DEFAULT_REPLICATES` (ratios with two or more steady runs)."""
+    out = {}
+    for sigma, runs in SEGREGATION_DEFAULT_REPLICATES.items():
+        steady = [(p, se) for p, se, st, _ in runs if st == "steady"]
+        if len(steady) < 2:
+            continue
+        ps = np.array([p for p, _ in steady])
+        sd = float(ps.std(ddof=1))
+        rms = float(np.sqrt(np.mean([se ** 2 for _, se in steady])))
+        out[sigma] = (len(steady), sd, rms, sd / rms)
+    return out
+
+
+def segregation_seed_scatter_note() -> str:
+    """What one run per size ratio does not know (stated where a ratio has a single run)."""
+    parts = [f"sigma = {s:g}: {n} seeds scatter by {sd:.2g} against their own stderrs "
+             f"{rms:.2g} ({r:.1f}x)" for s, (n, sd, rms, r) in segregation_seed_scatter().items()]
+    return ("one run per size ratio: its Ps stderr is within-run (its profile windows), the "
+            "scatter between insertion seeds is not measured; at the default set-up (depth 8, "
+            "10 x 5, 25 deg) " + "; ".join(parts) + " (granflow.reference."
+            "SEGREGATION_DEFAULT_REPLICATES; config/replicates-segregation.yaml): set "
+            "segregation numerics.replicates >= 3 for a stderr that includes it")
+
+
 def segregation_depth_note() -> str:
     """What :data:`SEGREGATION_PAPER_SETUP` measured about the depth Ps is scaled by (stated
     for every segregation campaign: it holds whatever the set-up)."""

@@ -148,6 +148,20 @@ def ps_still_moving(extra: dict) -> bool:
             and p < PS_TREND_P and abs(ch) > PS_TREND_TOLERANCE)
 
 
+def count_as_drifting(fit):
+    """A run whose small particles' centre of mass was shown steady while Ps itself still
+    moves over the profile's windows (:func:`ps_still_moving`): its Ps bounds the steady value
+    from one side only, so its fit's segregated state is "drifting" too (the campaign table's
+    row says so, and :func:`granflow.campaign.fits.assess_segregation_runs` then calls the
+    per-run Ps unidentified: until 2026-12-07 the fit kept "steady" and a library took its Ps
+    as the ratio's steady value)."""
+    return fit.replace(
+        selection=fit.selection + (
+            f"; Ps still moving over its windows ({100 * fit.extra['Ps_trend_change']:+.1f} %"
+            f", trend p = {fit.extra['Ps_trend_p']:.2g}): counted as drifting"),
+        extra=dict(fit.extra, segregation_state="drifting", Ps_still_moving=True))
+
+
 def segregation_fit(run_dir, sigma: float, law: str, window: float):
     """Fit Ps (T-eq. 28) to a bidisperse run's phi(z) in its steady segregated window.
 
@@ -365,12 +379,8 @@ def derive_row(run_dir, rel: str | None = None, segregation_window: float = 100.
                                     f" ({profile['n_windows']} windows); flow {row['state']}, "
                                     f"segregated state {fit.extra.get('segregation_state')}")
         if row["segregation_state"] == "steady" and ps_still_moving(fit.extra):
-            # the centre of mass was shown steady but Ps itself still moves over the profile's
-            # windows: its Ps bounds the steady value from one side only
             row["segregation_state"] = "drifting"
-            fit = fit.replace(selection=fit.selection + (
-                f"; Ps still moving over its windows ({100 * fit.extra['Ps_trend_change']:+.1f} %"
-                f", trend p = {fit.extra['Ps_trend_p']:.2g}): counted as drifting"))
+            fit = count_as_drifting(fit)
         row["Ps"] = fit.params["Ps"]
         row["Ps_std"] = spread
         row["Ps_sem"] = fit.stderr["Ps"]

@@ -58,7 +58,11 @@ def run_fits(table, segregation=(), n_bootstrap: int = 200, seed: int = 0, exclu
 
     fits = (list(fit_campaign(table, windows=windows, n_bootstrap=n_bootstrap, seed=seed))
             if len(table) else [])
-    fits += assess_segregation_runs(segregation, table)
+    # one value per size ratio: several runs there (replicates, starts) are averaged, their
+    # spread entering the stderr (granflow.fitting.segregation.combine_Ps_runs)
+    from ..fitting.segregation import combine_Ps_runs
+
+    fits += combine_Ps_runs(assess_segregation_runs(segregation, table))
     return fits
 
 

@@ -173,9 +173,13 @@ def config_differences(config: dict) -> list[str]:
             note = segregation_reduction_note(seg["H"])
             if note:
                 out.append(note)
-        from ..reference import segregation_depth_note
+        from ..reference import segregation_depth_note, segregation_seed_scatter_note
 
         out.append(segregation_depth_note())
+        from .grid import replicates
+
+        if replicates(config, "segregation") < 2:
+            out.append(segregation_seed_scatter_note())
         if "theta" in seg and not _same(seg["theta"], PAPER["segregation_theta"]):
             out.append(f"segregation at {_fmt(seg['theta'])} deg (paper 25)")
         sn = dict(nu, **(seg.get("numerics") or {}))

@@ -132,7 +132,15 @@ KINDS = {
         {"phi0": (U.DIMENSIONLESS, "mean small-particle volume fraction phi0"),
          "ci95": (U.DIMENSIONLESS, "95% confidence interval of Ps"),
          "scaled_depth": (U.LENGTH, "depth s - b of Eq. (42) over which z is scaled to [0, 1] "
-                                    "(Ps is per unit scaled depth)")}),
+                                    "(Ps is per unit scaled depth)"),
+         # several runs at one ratio (replicates, starts): granflow.fitting.combine_Ps_runs
+         "runs_combined": (U.DIMENSIONLESS, "number of runs whose Ps is averaged at this size "
+                                            "ratio (NaN: one run)"),
+         "Ps_between_run_sd": (U.DIMENSIONLESS, "standard deviation of Ps between the runs at "
+                                                "this size ratio (seeds, starts)"),
+         "Ps_within_run_sem": (U.DIMENSIONLESS, "standard error of the runs' mean Ps from their "
+                                                "own window errors alone (compare with "
+                                                "segregation_Ps_stderr)")}),
     "segregation_asymmetric": KindSpec(
         (CONTACT_LAW_DIM, SIGMA_DIM), "Gajjar & Gray 2014 asymmetric flux (seed 001 Eq. 2.9)",
         {"Ps": (U.DIMENSIONLESS, "segregation Peclet number Ps (asymmetric flux)"),

@@ -21,6 +21,7 @@ fit_alpha                   shape factor: Eq. (54) basal-layer model or constant
 fit_Ps                      per-run segregation Peclet number, T-eq. (28)
 fit_asymmetric_flux         asymmetric-flux steady profile (seed 001 Eq. 2.9)
 fit_Ps_law                  Ps(sigma) = Pmax (1 - exp(-k (1/sigma - 1))), T-eq. (29)
+combine_Ps_runs             one Ps per size ratio from several runs (replicates, starts)
 fit_mu_I                    mu(I) rheology, seed 001 Eq. (2.13)
 fit_campaign                all of the above from one campaign table
 DisorderedWindow            delta3(H) < theta < delta_acc of one roughness (Eq. 46, 48)
@@ -35,8 +36,9 @@ from .hstop import (compare_hstop_forms, fit_hstop, fit_hstop_eq38, hstop_eq38, 
 from .identify import assess
 from .result import FitResult, error_eq49, failed_fit
 from .rheology import fit_mu_I, inertial_number, mu_of_I
-from .segregation import (Ps_teq29, asymmetric_flux_amplitude, compare_segregation_models,
-                          fit_asymmetric_flux, fit_Ps, fit_Ps_law, phi_asymmetric, phi_teq28)
+from .segregation import (Ps_teq29, asymmetric_flux_amplitude, combine_Ps_runs,
+                          compare_segregation_models, fit_asymmetric_flux, fit_Ps, fit_Ps_law,
+                          phi_asymmetric, phi_teq28)
 from .shape_factor import (alpha_by_theta, alpha_eq54, alpha_eq55, fit_alpha,
                            fit_alpha_basal_layer, fit_alpha_constant, velocity_profile_eq54)
 from .table import (CAMPAIGN_COLUMNS, FLOW_STATES, campaign_table_from_records,
@@ -53,6 +55,6 @@ __all__ = [
     "alpha_by_theta", "alpha_eq54", "alpha_eq55", "velocity_profile_eq54", "fit_alpha",
     "fit_alpha_basal_layer", "fit_alpha_constant",
     "phi_teq28", "phi_asymmetric", "asymmetric_flux_amplitude", "Ps_teq29", "fit_Ps",
-    "fit_asymmetric_flux", "fit_Ps_law", "compare_segregation_models",
+    "fit_asymmetric_flux", "fit_Ps_law", "compare_segregation_models", "combine_Ps_runs",
     "mu_of_I", "inertial_number", "fit_mu_I", "fit_campaign", "DisorderedWindow",
 ]

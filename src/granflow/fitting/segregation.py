@@ -438,3 +438,114 @@ def k_lower_bound(x, Ps, Ps_stderr=None) -> float:
     while g(hi) > 0 and hi < 1e6:
         hi *= 2.0
     return float(optimize.brentq(g, 1e-9, hi)) if g(hi) <= 0 else math.inf
+
+
+# ----------------------------------------------------------- several runs at one size ratio
+#: said of a size ratio with a single run (granflow.reference.segregation_seed_scatter_note
+#: has the measured scatter between seeds, in the library's reductions_vs_paper)
+ONE_RUN_NOTE = ("one run at this ratio: its Ps stderr is within-run only (its profile "
+                "windows); the scatter between insertion seeds is not measured (at the default "
+                "set-up seeds scatter 2-9x more: reductions_vs_paper)")
+
+def combine_Ps_runs(fits) -> list:
+    """One ``segregation`` fit per (contact law, sigma) from the per-run T-eq. (28) fits.
+
+    A campaign with replicates (insertion seeds) or several starts at one size ratio has
+    several per-run fits there; the library holds one value per ratio.  Fits of other kinds and
+    ratios with one run pass through unchanged.  At a ratio with several runs the identified
+    ones (``ok``: steady flow, steady segregated state, Ps identified) are averaged:
+
+        Ps = mean(Ps_i),  stderr^2 = max(s^2, mean(sem_i^2)) / n,
+
+    s the standard deviation between the runs and sem_i each run's own (decorrelated windows)
+    standard error: the runs' spread measures what one run's windows cannot see (another seed,
+    another start, a segregated state that wanders over longer times than a profile window),
+    and where the runs agree better than their own errors say, those errors stand.  The 95 %
+    interval uses Student's t with n - 1 degrees of freedom.  ``extra``: ``Ps_between_run_sd``
+    (s), ``runs_combined`` (n), ``Ps_runs`` and ``Ps_runs_sem`` (each run's value and error),
+    ``Ps_within_run_sem`` (sqrt(mean sem_i^2) / sqrt(n): what the runs' own errors alone give).
+    With no identified run, the first run's fit (by run name) stands for the ratio, unidentified,
+    its message naming the others."""
+    from .identify import assess
+
+    groups: dict = {}
+    order = []
+    for r in fits:
+        if r.kind != "segregation":
+            order.append(("pass", id(r), r))
+            continue
+        key = (str(r.coords.get("contact_law")), float(r.coords.get("sigma", math.nan)))
+        if key not in groups:
+            groups[key] = []
+            order.append(("group", key, None))
+        groups[key].append(r)
+    out = []
+    for what, key, r in order:
+        if what == "pass":
+            out.append(r)
+            continue
+        runs = sorted(groups[key], key=lambda f: str(f.runs_used[0]) if f.runs_used else "")
+        if len(runs) == 1:
+            out.append(runs[0].replace(selection=(runs[0].selection + "; " if runs[0].selection
+                                                  else "") + ONE_RUN_NOTE))
+            continue
+        out.append(_combined_Ps_fit(runs, assess))
+    return out
+
+
+def _combined_Ps_fit(runs, assess) -> FitResult:
+    names = [str(f.runs_used[0]) if f.runs_used else "?" for f in runs]
+    good = [f for f in runs if f.ok and math.isfinite(f.params.get("Ps", math.nan))]
+    left = [n for f, n in zip(runs, names) if f not in good]
+    if not good:
+        first = runs[0]
+        values = ", ".join(f"{n}: {f.params.get('Ps', math.nan):.4g}"
+                           for f, n in zip(runs, names))
+        note = (f"; {len(runs)} runs at this ratio, none with an identified steady Ps "
+                f"({values}): the first stands for the ratio")
+        return first.replace(message=first.message + note,
+                             runs_used=tuple(names),
+                             extra=dict(first.extra, runs_combined=0))
+    v = np.array([f.params["Ps"] for f in good], dtype=float)
+    sem = np.array([f.stderr.get("Ps", math.nan) for f in good], dtype=float)
+    n = len(good)
+    within2 = float(np.nanmean(sem ** 2)) if np.isfinite(sem).any() else math.nan
+    if n == 1:
+        f = good[0]
+        return f.replace(message=f.message + (
+            f"; the only identified run of {len(runs)} at this ratio (left out: "
+            f"{', '.join(left)})"), extra=dict(f.extra, runs_combined=1))
+    mean = float(v.mean())
+    sd = float(v.std(ddof=1))
+    var = max(sd ** 2, within2) if math.isfinite(within2) else sd ** 2
+    se = math.sqrt(var / n)
+    half = float(stats.t.ppf(0.975, n - 1)) * se
+    phi0 = [f.extra.get("phi0") for f in good if f.extra.get("phi0") is not None]
+    depth = [f.extra.get("scaled_depth") for f in good
+             if f.extra.get("scaled_depth") is not None]
+    base = good[0]
+    extra = dict(
+        phi0=float(np.mean(phi0)) if phi0 else math.nan,
+        scaled_depth=float(np.nanmean(depth)) if depth else math.nan,
+        ci95=(mean - half, mean + half),
+        Ps_between_run_sd=sd, runs_combined=n,
+        Ps_runs=[float(x) for x in v], Ps_runs_sem=[float(x) for x in sem],
+        Ps_within_run_sem=math.sqrt(within2 / n) if math.isfinite(within2) else math.nan,
+        segregation_state=str(base.extra.get("segregation_state", "")),
+    )
+    ratio = sd / math.sqrt(within2) if math.isfinite(within2) and within2 > 0 else math.nan
+    used = [n_ for f, n_ in zip(runs, names) if f in good]
+    message = (f"mean of {n} runs' T-eq. (28) fits ({', '.join(used)}): "
+               f"Ps {', '.join(f'{x:.4g}' for x in v)}; spread between runs {sd:.3g} = "
+               f"{ratio:.2g}x the runs' own standard errors (rms)"
+               + (f"; left out (not identified): {', '.join(left)}" if left else ""))
+    combined = FitResult(
+        kind="segregation", equation=base.equation, params={"Ps": mean}, stderr={"Ps": se},
+        error=float(np.mean([f.error for f in good])), n_points=int(sum(f.n_points for f in good)),
+        ok=True, message=message,
+        stderr_method=("standard error of the mean of the runs: sqrt(max(between-run variance, "
+                       "mean within-run sem^2) / n)"),
+        error_measure=base.error_measure, valid_range=dict(base.valid_range),
+        coords=dict(base.coords), extra=extra, runs_used=tuple(used),
+        selection=f"{n} of {len(runs)} runs at sigma = {base.coords.get('sigma')}")
+    return assess(combined)
