@@ -631,6 +631,9 @@ from granflow.fitting.campaign import between_seed_scatter
 rep_rows = []
 for col in ("F", "rho_c", "K", "alpha", "h", "Ps"):
     sub = table[(table["state"] == "steady")]
+    if col == "Ps" and "segregation_state" in sub.columns:
+        # a drifting run's Ps is a one-sided bound, not a draw of the steady value
+        sub = sub[sub["segregation_state"].astype(str) == "steady"]
     tau, n_groups, within = between_seed_scatter(sub, col)
     rep_rows.append({"quantity": col, "replicate groups": n_groups,
                      "between-seed std tau": tau,

@@ -444,6 +444,21 @@ SEGREGATION_DEFAULT_REPLICATES = {
           (4.216, 0.091, "steady", 1151.0)],
 }
 
+# Is that scatter wander in time or a state each seed keeps?  The sigma = 0.9 runs of seeds 1
+# and 2 (Ps 3.904 and 4.952 at their stop) continued for 2000 time units each (granflow
+# simulate --from, early_stop false; results/seg-wander09, 1018 and 1030 s of CPU on one core
+# each, 2026-12-07): seed 1 rose from 3.64 to 5.47 within 400 units and both runs wandered over
+# the same range.  Over t = 1000 to the end (3421 and 3311 on the chained clock): seed -> (mean
+# Ps of the 20-unit windows, its standard error with their autocorrelation, the standard
+# deviation of 60-unit means (a profile window's Ps), smallest and largest 200-unit mean, the
+# windows' autocorrelation time (1/e) in time units).  The two means agree (difference 0.12 +-
+# 0.22): one state, whose Ps a 60-unit profile window samples with a spread of 0.4-0.6 (9-14 %).
+SEGREGATION_DEFAULT_WANDER = {
+    "sigma": 0.9,
+    1: dict(Ps=4.638, stderr=0.193, sd_60=0.642, block_200=(3.90, 5.29), acf_time=320.0),
+    2: dict(Ps=4.514, stderr=0.111, sd_60=0.406, block_200=(4.07, 5.06), acf_time=160.0),
+}
+
 
 def segregation_seed_scatter() -> dict:
     """sigma -> (steady runs, their standard deviation, rms of their within-run stderrs,
@@ -464,10 +479,16 @@ def segregation_seed_scatter_note() -> str:
     """What one run per size ratio does not know (stated where a ratio has a single run)."""
     parts = [f"sigma = {s:g}: {n} seeds scatter by {sd:.2g} against their own stderrs "
              f"{rms:.2g} ({r:.1f}x)" for s, (n, sd, rms, r) in segregation_seed_scatter().items()]
+    w = SEGREGATION_DEFAULT_WANDER
+    sds = sorted(w[k]["sd_60"] for k in (1, 2))
     return ("one run per size ratio: its Ps stderr is within-run (its profile windows), the "
             "scatter between insertion seeds is not measured; at the default set-up (depth 8, "
             "10 x 5, 25 deg) " + "; ".join(parts) + " (granflow.reference."
-            "SEGREGATION_DEFAULT_REPLICATES; config/replicates-segregation.yaml): set "
+            "SEGREGATION_DEFAULT_REPLICATES; config/replicates-segregation.yaml); it is wander "
+            f"in time: two sigma = {w['sigma']:g} runs continued for 2000 time units each "
+            f"agree in mean ({w[1]['Ps']:.2f} and {w[2]['Ps']:.2f}) while a profile window's Ps "
+            f"spreads by {sds[0]:.1f}-{sds[1]:.1f} about it (autocorrelation time "
+            f"{w[2]['acf_time']:.0f}-{w[1]['acf_time']:.0f}; SEGREGATION_DEFAULT_WANDER): set "
             "segregation numerics.replicates >= 3 for a stderr that includes it")
 
 
