@@ -199,8 +199,18 @@ def test_default_campaign_covers_every_closure():
     # with the scatter measured at the default set-up (3 seeds at sigma = 0.9: 9.4x)
     assert ("sigma = 0.9: 3 seeds scatter by 0.54 against their own stderrs 0.057 (9.4x)"
             in text), text
-    # ... and that it is wander in time (two of those runs continued agree in mean)
-    assert "agree in mean (4.64 and 4.51) while a profile window's Ps spreads by 0.4-0.6" in text
+    # ... and that it is wander in time: two runs per ratio, continued, agree in mean (within
+    # twice their combined autocorrelated stderr) while a profile window's Ps wanders about it
+    assert "sigma = 0.9: means 4.64 and 4.51, a profile window's Ps spreading by 9-14 %" in text
+    from granflow.reference import SEGREGATION_DEFAULT_REPLICATES, SEGREGATION_DEFAULT_WANDER
+
+    for sigma, seeds in SEGREGATION_DEFAULT_WANDER.items():
+        a, b = seeds[1], seeds[2]
+        assert abs(a["Ps"] - b["Ps"]) < 2 * math.hypot(a["stderr"], b["stderr"]), sigma
+        # ... and the seeds' stopped values scatter far beyond their own stderrs, but not
+        # beyond the wander a profile window shows
+        stopped = [p for p, _, st, _ in SEGREGATION_DEFAULT_REPLICATES[sigma] if st == "steady"]
+        assert max(abs(p - a["Ps"]) for p in stopped) < 3 * max(a["sd_60"], b["sd_60"]), sigma
     reps = copy.deepcopy(cfg)
     reps["campaigns"]["segregation"].setdefault("numerics", {})["replicates"] = 3
     assert "one run per size ratio" not in reductions_vs_paper(reps)

@@ -444,19 +444,28 @@ SEGREGATION_DEFAULT_REPLICATES = {
           (4.216, 0.091, "steady", 1151.0)],
 }
 
-# Is that scatter wander in time or a state each seed keeps?  The sigma = 0.9 runs of seeds 1
-# and 2 (Ps 3.904 and 4.952 at their stop) continued for 2000 time units each (granflow
-# simulate --from, early_stop false; results/seg-wander09, 1018 and 1030 s of CPU on one core
-# each, 2026-12-07): seed 1 rose from 3.64 to 5.47 within 400 units and both runs wandered over
-# the same range.  Over t = 1000 to the end (3421 and 3311 on the chained clock): seed -> (mean
-# Ps of the 20-unit windows, its standard error with their autocorrelation, the standard
+# Is that scatter wander in time or a state each seed keeps?  Runs of seeds 1 and 2 continued
+# from their final states (granflow simulate --from, early_stop false; results/seg-wander09,
+# results/seg-wander075; 2026-12-07, one core each): at sigma = 0.9 (Ps 3.904 and 4.952 at their
+# stop) for 2000 time units (1018 and 1030 s of CPU): seed 1 rose from 3.64 to 5.47 within 400
+# units and both wandered over the same range; at sigma = 0.75 (8.966 drifting and 12.642
+# steady at their stop) for 1500 (656 s each): the drifting run rose to 10-12 and both wandered
+# over 8-15.  Over t >= 1000 (0.9) and t >= 900 (0.75) to the end of the chain: sigma -> seed ->
+# (mean Ps of the 20-unit windows, its standard error with their autocorrelation, the standard
 # deviation of 60-unit means (a profile window's Ps), smallest and largest 200-unit mean, the
-# windows' autocorrelation time (1/e) in time units).  The two means agree (difference 0.12 +-
-# 0.22): one state, whose Ps a 60-unit profile window samples with a spread of 0.4-0.6 (9-14 %).
+# windows' autocorrelation time (1/e) in time units).  At each ratio the two means agree: one
+# state, whose Ps a 60-unit profile window samples with a spread of 9-14 % (0.9) and 9-10 %
+# (0.75) of it; the default campaign's own runs stopped at 3.90 (0.6 below the long mean) and
+# 8.97 (a lower bound that holds).
 SEGREGATION_DEFAULT_WANDER = {
-    "sigma": 0.9,
-    1: dict(Ps=4.638, stderr=0.193, sd_60=0.642, block_200=(3.90, 5.29), acf_time=320.0),
-    2: dict(Ps=4.514, stderr=0.111, sd_60=0.406, block_200=(4.07, 5.06), acf_time=160.0),
+    0.9: {1: dict(Ps=4.638, stderr=0.193, sd_60=0.642, block_200=(3.90, 5.29), acf_time=320.0,
+                  t=(1000.0, 3421.0)),
+          2: dict(Ps=4.514, stderr=0.111, sd_60=0.406, block_200=(4.07, 5.06), acf_time=160.0,
+                  t=(1000.0, 3311.0))},
+    0.75: {1: dict(Ps=10.630, stderr=0.326, sd_60=0.969, block_200=(9.13, 11.50), acf_time=80.0,
+                   t=(900.0, 2271.0)),
+           2: dict(Ps=10.482, stderr=0.272, sd_60=1.057, block_200=(9.66, 11.14), acf_time=40.0,
+                   t=(900.0, 2141.0))},
 }
 
 
@@ -479,17 +488,20 @@ def segregation_seed_scatter_note() -> str:
     """What one run per size ratio does not know (stated where a ratio has a single run)."""
     parts = [f"sigma = {s:g}: {n} seeds scatter by {sd:.2g} against their own stderrs "
              f"{rms:.2g} ({r:.1f}x)" for s, (n, sd, rms, r) in segregation_seed_scatter().items()]
-    w = SEGREGATION_DEFAULT_WANDER
-    sds = sorted(w[k]["sd_60"] for k in (1, 2))
+    runs = []
+    for sigma, seeds in SEGREGATION_DEFAULT_WANDER.items():
+        means = " and ".join(f"{w['Ps']:.2f}" for w in seeds.values())
+        rel = sorted(w["sd_60"] / w["Ps"] for w in seeds.values())
+        runs.append(f"sigma = {sigma:g}: means {means}, a profile window's Ps spreading by "
+                    f"{100 * rel[0]:.0f}-{100 * rel[-1]:.0f} %")
     return ("one run per size ratio: its Ps stderr is within-run (its profile windows), the "
             "scatter between insertion seeds is not measured; at the default set-up (depth 8, "
             "10 x 5, 25 deg) " + "; ".join(parts) + " (granflow.reference."
             "SEGREGATION_DEFAULT_REPLICATES; config/replicates-segregation.yaml); it is wander "
-            f"in time: two sigma = {w['sigma']:g} runs continued for 2000 time units each "
-            f"agree in mean ({w[1]['Ps']:.2f} and {w[2]['Ps']:.2f}) while a profile window's Ps "
-            f"spreads by {sds[0]:.1f}-{sds[1]:.1f} about it (autocorrelation time "
-            f"{w[2]['acf_time']:.0f}-{w[1]['acf_time']:.0f}; SEGREGATION_DEFAULT_WANDER): set "
-            "segregation numerics.replicates >= 3 for a stderr that includes it")
+            "in time: two runs per ratio continued for 1500-2000 time units agree in mean "
+            "while a profile window's Ps wanders about it (" + "; ".join(runs) + "; "
+            "SEGREGATION_DEFAULT_WANDER): set segregation numerics.replicates >= 3 for a "
+            "stderr that includes it")
 
 
 def segregation_depth_note() -> str:
