@@ -888,3 +888,32 @@ def test_segregation_detector_calibration_replays_the_detector_on_known_answers(
     assert segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0).steady
     k = t <= 1100.0
     assert not segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0).steady
+
+
+def test_segregation_wander_tells_an_honest_window_stderr_from_a_wandering_state():
+    """benchmarks/segregation_wander.py on series with known answers: independent windows
+    (white noise, sd 0.3) have an autocorrelation time of one window and block means that
+    scatter as their own stderrs say (ratio 1 within 25 %); an AR(1) series whose
+    autocorrelation time is 20 windows has that time (within 30 %) and 3-window means
+    scattering more than twice their own stderrs -- a state wandering on times longer than the
+    averaging, as measured at the default segregation set-up."""
+    sw = _load("segregation_wander")
+    rng = np.random.default_rng(52)
+    white = 5.0 + 0.3 * rng.standard_normal(3000)
+    t = 20.0 * np.arange(white.size)
+    r = sw.wander(t, white, t_from=0.0, window=20.0, lengths=(60.0, 300.0))
+    assert r["acf_time"] == 20.0 and r["mean"] == pytest.approx(5.0, abs=0.03)
+    assert r["blocks"][60.0]["ratio"] == pytest.approx(1.0, abs=0.25)
+    assert r["blocks"][60.0]["sd"] == pytest.approx(0.3 / math.sqrt(3), rel=0.1)
+    phi = math.exp(-1.0 / 20.0)
+    ar = np.empty(20000)
+    ar[0] = 0.0
+    eps = rng.standard_normal(ar.size) * math.sqrt(1 - phi ** 2)
+    for i in range(1, ar.size):
+        ar[i] = phi * ar[i - 1] + eps[i]
+    r = sw.wander(20.0 * np.arange(ar.size), 5.0 + 0.4 * ar, t_from=0.0, window=20.0,
+                  lengths=(60.0,))
+    assert r["acf_time"] / 20.0 == pytest.approx(20.0, rel=0.3)
+    assert r["blocks"][60.0]["ratio"] > 2.0
+    with pytest.raises(ValueError, match="t_from"):
+        sw.wander(t[:10], white[:10], t_from=1e9, window=20.0)

@@ -453,20 +453,30 @@ SEGREGATION_DEFAULT_REPLICATES = {
 # over 8-15.  Over t >= 1000 (0.9) and t >= 900 (0.75) to the end of the chain: sigma -> seed ->
 # (mean Ps of the 20-unit windows, its standard error with their autocorrelation, the standard
 # deviation of 60-unit means (a profile window's Ps), smallest and largest 200-unit mean, the
-# windows' autocorrelation time (1/e) in time units).  At each ratio the two means agree: one
-# state, whose Ps a 60-unit profile window samples with a spread of 9-14 % (0.9) and 9-10 %
+# windows' autocorrelation time (1/e) in time units; benchmarks/segregation_wander.py).  At each ratio the two means agree: one
+# state, whose Ps a 60-unit profile window samples with a spread of 8-10 % (0.9) and 9-10 %
 # (0.75) of it; the default campaign's own runs stopped at 3.90 (0.6 below the long mean) and
 # 8.97 (a lower bound that holds).
 SEGREGATION_DEFAULT_WANDER = {
-    0.9: {1: dict(Ps=4.638, stderr=0.193, sd_60=0.642, block_200=(3.90, 5.29), acf_time=320.0,
+    0.9: {1: dict(Ps=4.638, stderr=0.193, sd_60=0.482, block_200=(3.90, 5.29), acf_time=260.0,
                   t=(1000.0, 3421.0)),
-          2: dict(Ps=4.514, stderr=0.111, sd_60=0.406, block_200=(4.07, 5.06), acf_time=160.0,
+          2: dict(Ps=4.514, stderr=0.111, sd_60=0.360, block_200=(4.07, 5.06), acf_time=140.0,
                   t=(1000.0, 3311.0))},
     0.75: {1: dict(Ps=10.630, stderr=0.326, sd_60=0.969, block_200=(9.13, 11.50), acf_time=80.0,
                    t=(900.0, 2271.0)),
            2: dict(Ps=10.482, stderr=0.272, sd_60=1.057, block_200=(9.66, 11.14), acf_time=40.0,
                    t=(900.0, 2141.0))},
 }
+
+
+# Would a longer profile window make one run's stderr honest?  Over the same continued runs
+# (SEGREGATION_DEFAULT_WANDER's spans), the means of consecutive windows of L time units
+# scatter by more than each window's own autocorrelated standard error of the mean
+# (granflow.steady.timeseries.standard_error_of_mean of its 20-unit windows' Ps) says:
+# L -> (smallest, largest) ratio over the four runs (sigma 0.75 and 0.9, two seeds each;
+# benchmarks/segregation_wander.py).
+# Averaging five times longer only halves the understatement: the wander outlasts the window.
+SEGREGATION_WINDOW_SEM_RATIO = {60.0: (2.0, 8.1), 120.0: (2.0, 6.9), 300.0: (1.4, 4.3)}
 
 
 def segregation_seed_scatter() -> dict:
