@@ -890,7 +890,8 @@ def test_segregation_detector_calibration_replays_the_detector_on_known_answers(
     assert not segregation_steadiness(t[k], s[k], averaging_time=200.0, min_onset=20.0).steady
 
 
-def test_segregation_wander_tells_an_honest_window_stderr_from_a_wandering_state():
+def test_segregation_wander_tells_an_honest_window_stderr_from_a_wandering_state(tmp_path,
+                                                                                 capsys):
     """benchmarks/segregation_wander.py on series with known answers: independent windows
     (white noise, sd 0.3) have an autocorrelation time of one window and block means that
     scatter as their own stderrs say (ratio 1 within 25 %); an AR(1) series whose
@@ -917,3 +918,10 @@ def test_segregation_wander_tells_an_honest_window_stderr_from_a_wandering_state
     assert r["blocks"][60.0]["ratio"] > 2.0
     with pytest.raises(ValueError, match="t_from"):
         sw.wander(t[:10], white[:10], t_from=1e9, window=20.0)
+    # the command line on segregation_approach.py's --json output (the README's command)
+    path = tmp_path / "w.json"
+    path.write_text(json.dumps({"window": 20.0, "windows": {
+        "t_start": t.tolist(), "Ps": white.tolist()}}))
+    assert sw.main([str(path), "--t-from", "1000"]) == 0
+    out = capsys.readouterr().out
+    assert "2950 windows of 20 over t = 1000-60000" in out and "60-unit means: 983" in out

@@ -136,6 +136,11 @@ README_COMMANDS = {
          "test_segregation_approach_joins_a_continuation_to_its_parent_on_the_parents_clock",
          "a measurement tool on a run's outputs; the test runs its main() on a relaxation split "
          "in two and in three pieces"),
+    ".venv/bin/python benchmarks/segregation_wander.py w.json --t-from 1000":
+        ("tests/test_benchmark_tools.py::"
+         "test_segregation_wander_tells_an_honest_window_stderr_from_a_wandering_state",
+         "a measurement tool on segregation_approach.py's --json series; the test runs its "
+         "main() on a white-noise series written in that format"),
     ".venv/bin/python benchmarks/bench_engine_vs_lammps.py":
         (None, "benchmark, not part of the test suite (benchmarks/README.md)"),
     ".venv/bin/python benchmarks/bench_engine_vs_lammps.py --repeat 5":
