@@ -447,6 +447,7 @@ ONE_RUN_NOTE = ("one run at this ratio: its Ps stderr is within-run only (its pr
                 "windows); the scatter between insertion seeds is not measured (at the default "
                 "set-up seeds scatter 2-9x more: reductions_vs_paper)")
 
+
 def combine_Ps_runs(fits) -> list:
     """One ``segregation`` fit per (contact law, sigma) from the per-run T-eq. (28) fits.
 
@@ -466,8 +467,6 @@ def combine_Ps_runs(fits) -> list:
     ``Ps_within_run_sem`` (sqrt(mean sem_i^2) / sqrt(n): what the runs' own errors alone give).
     With no identified run, the first run's fit (by run name) stands for the ratio, unidentified,
     its message naming the others."""
-    from .identify import assess
-
     groups: dict = {}
     order = []
     for r in fits:
@@ -489,14 +488,18 @@ def combine_Ps_runs(fits) -> list:
             out.append(runs[0].replace(selection=(runs[0].selection + "; " if runs[0].selection
                                                   else "") + ONE_RUN_NOTE))
             continue
-        out.append(_combined_Ps_fit(runs, assess))
+        out.append(_combined_Ps_fit(runs))
     return out
 
 
-def _combined_Ps_fit(runs, assess) -> FitResult:
+def _combined_Ps_fit(runs) -> FitResult:
+    from .identify import assess
+
     names = [str(f.runs_used[0]) if f.runs_used else "?" for f in runs]
-    good = [f for f in runs if f.ok and math.isfinite(f.params.get("Ps", math.nan))]
-    left = [n for f, n in zip(runs, names) if f not in good]
+    is_good = [f.ok and math.isfinite(f.params.get("Ps", math.nan)) for f in runs]
+    good = [f for f, g in zip(runs, is_good) if g]
+    used = [n for n, g in zip(names, is_good) if g]
+    left = [n for n, g in zip(names, is_good) if not g]
     if not good:
         first = runs[0]
         values = ", ".join(f"{n}: {f.params.get('Ps', math.nan):.4g}"
@@ -534,7 +537,6 @@ def _combined_Ps_fit(runs, assess) -> FitResult:
         segregation_state=str(base.extra.get("segregation_state", "")),
     )
     ratio = sd / math.sqrt(within2) if math.isfinite(within2) and within2 > 0 else math.nan
-    used = [n_ for f, n_ in zip(runs, names) if f in good]
     message = (f"mean of {n} runs' T-eq. (28) fits ({', '.join(used)}): "
                f"Ps {', '.join(f'{x:.4g}' for x in v)}; spread between runs {sd:.3g} = "
                f"{ratio:.2g}x the runs' own standard errors (rms)"
