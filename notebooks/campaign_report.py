@@ -469,7 +469,7 @@ for law in laws:
         np.ones(len(s), bool)
     yerr = s["Ps_sem"] if "Ps_sem" in s and np.isfinite(s["Ps_sem"]).any() else s["Ps_std"]
     axes[1].errorbar(1 / s["sigma"][used], s["Ps"][used], yerr=yerr[used], fmt="o", ms=5,
-                     label=f"{law} runs used (error: decorrelated stderr)")
+                     label=f"{law} runs used (error: windows' stderr or wander at N)")
     if (~used).any():
         # a drifting run bounds its steady Ps: from below after a mixed start (^), from above
         # after a segregated one (v)
@@ -522,6 +522,10 @@ savefig(fig, "segregation")
 # value at the bound 0, no asymmetry), and the asymmetric row is then the symmetric fit again.
 # "segregated state" says whether the small-particle centre of mass had stopped drifting
 # (steady: the profile is averaged over the steady window; drifting: over the last window).
+# "Ps stderr" is the larger of the run's decorrelated windows' standard error ("windows' sem")
+# and the wander of a profile window's Ps in time at the run's N flow particles, C Ps / sqrt(N)
+# with C measured on long runs ("wander at N"; granflow.fitting.segregation.wander_sd): the
+# segregated state wanders over 40-300 time units, which one run's windows do not see.
 
 # %%
 cmp_rows = []
@@ -536,6 +540,8 @@ for item in sorted(seg_runs, key=lambda d: d["fit"]["coords"].get("sigma", 1)):
         "rms (asym.)": ex.get("asymmetric_rms_residual"), "AIC (asym.)": ex.get("asymmetric_aic"),
         "segregated state": ex.get("segregation_state", "n/a"),
         "profile from t": ex.get("profile_time_from"),
+        "Ps stderr": (item["fit"].get("stderr") or {}).get("Ps"),
+        "windows' sem": ex.get("Ps_windows_sem"), "wander at N": ex.get("Ps_wander_sd"),
     })
 display(pd.DataFrame(cmp_rows).round(4) if cmp_rows else Markdown("no segregation runs"))
 

@@ -202,6 +202,8 @@ def test_default_campaign_covers_every_closure():
     # ... and that it is wander in time: two runs per ratio, continued, agree in mean (within
     # twice their combined autocorrelated stderr) while a profile window's Ps wanders about it
     assert "sigma = 0.9: means 4.64 and 4.51, a profile window's Ps spreading by 8-10 %" in text
+    # ... and that the per-run stderr takes that wander in, scaled to the run's particles
+    assert "wander in time measured at its number of flow particles N (C Ps / sqrt(N), C = 1.63" in text
     from granflow.reference import SEGREGATION_DEFAULT_REPLICATES, SEGREGATION_DEFAULT_WANDER
 
     for sigma, seeds in SEGREGATION_DEFAULT_WANDER.items():
@@ -910,8 +912,9 @@ def test_segregation_fit_recovers_Ps_and_the_depth_it_is_per(tmp_path, depth):
     assert fit.extra["scaled_depth"] == pytest.approx(profile["surface"] - profile["base"])
 
 
-def _profiles_with_Ps(path, Ps_windows, depth=16.0, noise=0.0, seed=0):
-    """A run's profiles.nc whose windows hold T-eq. (28) profiles at the given Ps values."""
+def _profiles_with_Ps(path, Ps_windows, depth=16.0, noise=0.0, seed=0, n_flow=None):
+    """A run's profiles.nc whose windows hold T-eq. (28) profiles at the given Ps values
+    (``n_flow``: the run's number of flow particles, recorded as the engine does)."""
     import xarray as xr
 
     from granflow.fitting.segregation import phi_teq28
@@ -933,7 +936,43 @@ def _profiles_with_Ps(path, Ps_windows, depth=16.0, noise=0.0, seed=0):
          "window_time_start": (("window",), 100.0 + 20.0 * np.arange(n_w))},
         coords={"z": z},
         attrs={"t_final": 100.0 + 20.0 * n_w, "segregation_state": "steady",
-               "profile_time_from": 100.0, "cg_small_species": 0}).to_netcdf(path)
+               "profile_time_from": 100.0, "cg_small_species": 0,
+               **({} if n_flow is None else {"n_flow": int(n_flow)})}).to_netcdf(path)
+
+
+def test_a_runs_Ps_stderr_includes_the_wander_at_its_number_of_particles(tmp_path):
+    """One run's windows cannot see a segregated state that wanders over times as long as its
+    profile window (at the default set-up its Ps lay 0.7 from the long mean with a windows'
+    stderr of 0.03).  The per-run stderr is the larger of the windows' own and C Ps / sqrt(N)
+    (C = 1.63, measured at 284-7560 flow particles): at 300 particles and Ps ~ 9 that is
+    0.85, not the windows' ~0.02; at 1e6 particles (wander 0.015) a noisy run's windows win;
+    a run that does not record N keeps its windows' stderr and says the wander is left out."""
+    from granflow.campaign.collect import segregation_fit
+    from granflow.fitting.segregation import wander_sd
+    from granflow.reference import SEGREGATION_WANDER_C
+
+    steady = 9.0 + 0.05 * np.random.default_rng(4).standard_normal(6)
+    (tmp_path / "a").mkdir()
+    _profiles_with_Ps(tmp_path / "a" / "profiles.nc", steady, noise=0.002, n_flow=300)
+    fit, _, _ = segregation_fit(tmp_path / "a", 0.75, "linear", window=100.0)
+    Ps = fit.params["Ps"]
+    assert fit.stderr["Ps"] == pytest.approx(SEGREGATION_WANDER_C * Ps / math.sqrt(300))
+    assert fit.stderr["Ps"] == pytest.approx(0.85, abs=0.02)
+    assert fit.extra["Ps_wander_sd"] == fit.stderr["Ps"] > 10 * fit.extra["Ps_windows_sem"]
+    assert "C = 1.63" in fit.stderr_method and "wander" in fit.stderr_method
+    noisy = 9.0 + 0.8 * np.random.default_rng(5).standard_normal(6)
+    (tmp_path / "b").mkdir()
+    _profiles_with_Ps(tmp_path / "b" / "profiles.nc", noisy, noise=0.002, n_flow=1_000_000)
+    fit, _, _ = segregation_fit(tmp_path / "b", 0.75, "linear", window=100.0)
+    assert fit.extra["Ps_wander_sd"] == pytest.approx(0.00163 * fit.params["Ps"], rel=0.01)
+    assert fit.stderr["Ps"] == fit.extra["Ps_windows_sem"] > 0.2
+    (tmp_path / "c").mkdir()
+    _profiles_with_Ps(tmp_path / "c" / "profiles.nc", steady, noise=0.002)
+    fit, _, _ = segregation_fit(tmp_path / "c", 0.75, "linear", window=100.0)
+    assert fit.stderr["Ps"] == fit.extra["Ps_windows_sem"] < 0.05
+    assert "wander in time is not included" in fit.stderr_method
+    assert math.isnan(wander_sd(9.0, None)) and math.isnan(wander_sd(math.nan, 300))
+    assert math.isnan(wander_sd(9.0, 0))
 
 
 def test_a_Ps_still_rising_over_its_windows_is_not_called_steady(tmp_path):

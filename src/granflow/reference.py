@@ -354,7 +354,13 @@ SEGREGATION_PAPER_SETUP = {
             # their tail means +- wander (bounds[1.25]); runs weighted by their stderrs,
             # Birge-inflated (9.6x): Pmax 5.1 % below the paper's 7.35 (z -3.9), k agrees
             # (z +0.9, +30 %) with a 26 % stderr
-            "all_starts": {"Pmax": (6.979, 0.095), "k": (6.751, 1.760)}},
+            "all_starts": {"Pmax": (6.979, 0.095), "k": (6.751, 1.760)},
+            # the same points, each stderr at least the wander at its number of flow particles
+            # (granflow.fitting.segregation.wander_sd: 5625-7560 particles, 0.10-0.16; the
+            # floor measured on the 1.25 tails accounts for most of the other ratios' scatter,
+            # Birge 9.6 -> 1.75): Pmax 4.2 % below the paper's (z -2.3), k 22 % above (z +2.2)
+            "all_starts_with_wander": {"Pmax": (7.043, 0.132), "k": (6.374, 0.518),
+                                       "birge": 1.75}},
     # runs stopped while their segregated state still drifted, each a one-sided bound on its
     # steady Ps (2026-12-07, seed 1, one core each on a 2-vCPU Zen 3 host): at 1/sigma = 1.25,
     # started on T-eq. 28's profiles at Ps 3.5 and 7 (start~profile3.5, start~profile7), run to
@@ -435,6 +441,8 @@ SEGREGATION_PAPER_SETUP = {
 # default campaign's own (the same numbers).  "drifting": the centre of mass was shown steady
 # while Ps still moved over the windows (a lower bound after a mixed start).  Where the runs are
 # steady they scatter 2.0x (sigma 0.6) and 9.4x (sigma 0.9) more than their own stderrs say.
+#: flow particles of those runs per size ratio (summary.json ``n_flow``; the same for every seed)
+SEGREGATION_DEFAULT_N_FLOW = {0.6: 243, 0.75: 284, 0.9: 346}
 SEGREGATION_DEFAULT_REPLICATES = {
     0.6: [(14.023, 0.685, "drifting", 581.0), (14.206, 0.713, "steady", 381.0),
           (16.233, 0.689, "steady", 331.0)],
@@ -479,6 +487,41 @@ SEGREGATION_DEFAULT_WANDER = {
 SEGREGATION_WINDOW_SEM_RATIO = {60.0: (2.0, 8.1), 120.0: (2.0, 6.9), 300.0: (1.4, 4.3)}
 
 
+# How far one run's Ps (the mean over its profile window) lies from its state's long-time mean,
+# against the number of flow particles N: the standard deviation of profile-window-length means
+# of Ps, relative to the long mean, times sqrt(N).  A run cannot measure this itself (the
+# wander's autocorrelation time, 40-300 time units, is as long as a whole profile window), so a
+# run's Ps stderr takes the larger of its windows' own standard error and C Ps / sqrt(N)
+# (granflow.fitting.segregation.wander_sd).  Measured 2026-12-07 (benchmarks/segregation_wander.py
+# on the long runs of SEGREGATION_DEFAULT_WANDER and on the paper set-up's two 1/sigma = 1.25
+# tails of SEGREGATION_PAPER_SETUP["bounds"]): (set-up, sigma, N flow particles, averaging length
+# of one mean (the set-up's profile window) in time units, relative sd of those means, sd of
+# 300-unit means relative, what).  C = rms of rel sd * sqrt(N) at the profile window: 1.63
+# (1.12-1.93 over the six, the paper set-up's 20x more particles wandering 4.7x less, as
+# 1 / sqrt(N) says); 300-unit means give an rms of 1.43 (0.98-2.01), 600-unit means at the
+# default set-up about the same as 300 (the wander is not averaged away within a run), so C is
+# kept for every window length.  Over Ps 4.5-15.2 (the default's sigma = 0.6 seeds, 2 steady,
+# scatter by 9.4 % at N = 243: C 1.47, not in the rms).
+SEGREGATION_WANDER_SCALING = {
+    "points": [
+        ("default 10 x 5, depth 8, 25 deg", 0.9, 346, 60.0, 0.482 / 4.638, 0.465 / 4.638,
+         "seed 1 continued, t >= 1000"),
+        ("default 10 x 5, depth 8, 25 deg", 0.9, 346, 60.0, 0.360 / 4.514, 0.268 / 4.514,
+         "seed 2 continued, t >= 1000"),
+        ("default 10 x 5, depth 8, 25 deg", 0.75, 284, 60.0, 0.969 / 10.630, 0.635 / 10.630,
+         "seed 1 continued, t >= 900"),
+        ("default 10 x 5, depth 8, 25 deg", 0.75, 284, 60.0, 1.057 / 10.482, 0.612 / 10.482,
+         "seed 2 continued, t >= 900"),
+        ("paper 83.3 x 5, depth 24, 25 deg", 0.8, 7560, 50.0, 0.118 / 5.459, 0.126 / 5.459,
+         "from below (mixed), t >= 2799"),
+        ("paper 83.3 x 5, depth 24, 25 deg", 0.8, 7560, 50.0, 0.074 / 5.768, 0.084 / 5.768,
+         "from above (profile 7), t >= 903"),
+    ],
+}
+SEGREGATION_WANDER_C = float(np.sqrt(np.mean(
+    [(p[4] * np.sqrt(p[2])) ** 2 for p in SEGREGATION_WANDER_SCALING["points"]])))
+
+
 def segregation_seed_scatter() -> dict:
     """sigma -> (steady runs, their standard deviation, rms of their within-run stderrs,
     ratio) of :data:`SEGREGATION_DEFAULT_REPLICATES` (ratios with two or more steady runs)."""
@@ -504,14 +547,17 @@ def segregation_seed_scatter_note() -> str:
         rel = sorted(w["sd_60"] / w["Ps"] for w in seeds.values())
         runs.append(f"sigma = {sigma:g}: means {means}, a profile window's Ps spreading by "
                     f"{100 * rel[0]:.0f}-{100 * rel[-1]:.0f} %")
-    return ("one run per size ratio: its Ps stderr is within-run (its profile windows), the "
-            "scatter between insertion seeds is not measured; at the default set-up (depth 8, "
+    return ("one run per size ratio: its Ps stderr is the larger of its profile windows' "
+            f"and the wander in time measured at its number of flow particles N (C Ps / sqrt(N), "
+            f"C = {SEGREGATION_WANDER_C:.2f}, granflow.reference.SEGREGATION_WANDER_SCALING: "
+            "about 9 % at the default set-up's 280-350 particles, 2 % at the paper's 7560); the "
+            "scatter between this campaign's insertion seeds is not measured; at the default set-up (depth 8, "
             "10 x 5, 25 deg) " + "; ".join(parts) + " (granflow.reference."
             "SEGREGATION_DEFAULT_REPLICATES; config/replicates-segregation.yaml); it is wander "
             "in time: two runs per ratio continued for 1500-2000 time units agree in mean "
             "while a profile window's Ps wanders about it (" + "; ".join(runs) + "; "
             "SEGREGATION_DEFAULT_WANDER): set segregation numerics.replicates >= 3 for a "
-            "stderr that includes it")
+            "stderr that measures it in this campaign")
 
 
 def segregation_depth_note() -> str:

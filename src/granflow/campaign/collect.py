@@ -20,7 +20,8 @@ no known state at all is listed, with the reason, in ``excluded_runs.csv`` inste
 Per-run uncertainties: ``<col>_sem`` is the standard error of the run's mean from its
 decorrelated time windows (:func:`granflow.steady.timeseries.standard_error_of_mean`); for Ps it
 comes from the per-window fits of T-eq. (28), not from the covariance of the (correlated)
-coarse-grained profile points.
+coarse-grained profile points, and is at least the wander of the segregated state measured at
+the run's number of flow particles (:func:`granflow.fitting.segregation.wander_sd`).
 
 Which base a run fell onto: ``base_seed`` (from the campaign's configuration) and
 ``base_sha256`` (what the run recorded, ``summary["provenance"]``); runs of one base file that
@@ -174,9 +175,13 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
     ``asymmetric_kappa_status``: "reduced" and "fixed" where the profile does not identify
     kappa, which then is 0, the symmetric flux).
     Returns (FitResult tagged with sigma/contact_law, Ps spread over windows, profile dict);
-    the fit's ``stderr`` of Ps is replaced by the standard error of the mean of the per-window
-    fits (decorrelated windows; ``stderr_method`` says so) -- the covariance of the correlated
-    profile points understates it 5-10 times -- and ``extra["Ps_std"]`` holds their spread.
+    the fit's ``stderr`` of Ps is replaced by the larger of the standard error of the mean of
+    the per-window fits (decorrelated windows, ``extra["Ps_windows_sem"]``) -- the covariance
+    of the correlated profile points understates it 5-10 times -- and the wander of the
+    segregated state in time measured at the run's number of flow particles
+    (:func:`granflow.fitting.segregation.wander_sd`, ``extra["Ps_wander_sd"]``), which the
+    windows of one run understate another 2-8 times (``stderr_method`` says which and both
+    values); ``extra["Ps_std"]`` holds the windows' spread.
     """
     import xarray as xr
 
@@ -233,9 +238,24 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
             tr = trend_test(np.asarray(per), np.asarray(t_per))
             fit.extra["Ps_trend_change"] = float(tr.relative_change)
             fit.extra["Ps_trend_p"] = float(tr.p_value)
-        fit = fit.replace(stderr={"Ps": sem},
-                          stderr_method=("standard error of the mean of per-window fits "
-                                         f"({len(per)} windows, decorrelated)"))
+        # the state wanders on times as long as the profile window: its own windows cannot see
+        # that, the wander measured at this number of particles can (wander_sd)
+        from ..fitting.segregation import PS_STDERR_METHOD, wander_sd
+        from ..reference import SEGREGATION_WANDER_C
+
+        n_flow = _f(ds.attrs.get("n_flow"))
+        wander = wander_sd(fit.params["Ps"], n_flow)
+        fit.extra["Ps_windows_sem"] = sem
+        fit.extra["Ps_wander_sd"] = wander
+        if math.isfinite(wander):
+            total = max(sem, wander) if math.isfinite(sem) else wander
+            method = PS_STDERR_METHOD.format(c=SEGREGATION_WANDER_C)
+        else:
+            total = sem
+            method = ("standard error of the mean of the run's per-window fits (decorrelated "
+                      "windows); the wander in time is not included (the run does not record "
+                      "its number of flow particles)")
+        fit = fit.replace(stderr={"Ps": total}, stderr_method=method)
     profile = {"zeta": zeta.tolist(), "phi": phi[inside].tolist(), "base": b, "surface": s,
                "t_from": float(t_from), "n_windows": int(len(used)),
                "segregation_state": fit.extra["segregation_state"]}

@@ -140,7 +140,13 @@ KINDS = {
                                                 "this size ratio (seeds, starts)"),
          "Ps_within_run_sem": (U.DIMENSIONLESS, "standard error of the runs' mean Ps from their "
                                                 "own window errors alone (compare with "
-                                                "segregation_Ps_stderr)")}),
+                                                "segregation_Ps_stderr)"),
+         # a run's own error is the larger of these two (granflow.campaign.collect)
+         "Ps_windows_sem": (U.DIMENSIONLESS, "standard error of Ps from the run's decorrelated "
+                                             "profile windows (several runs: rms / sqrt(n))"),
+         "Ps_wander_sd": (U.DIMENSIONLESS, "wander of a profile window's Ps in time at the run's "
+                                           "number of flow particles, C Ps / sqrt(N), measured "
+                                           "on long runs (several runs: rms / sqrt(n))")}),
     "segregation_asymmetric": KindSpec(
         (CONTACT_LAW_DIM, SIGMA_DIM), "Gajjar & Gray 2014 asymmetric flux (seed 001 Eq. 2.9)",
         {"Ps": (U.DIMENSIONLESS, "segregation Peclet number Ps (asymmetric flux)"),

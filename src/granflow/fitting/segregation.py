@@ -440,12 +440,40 @@ def k_lower_bound(x, Ps, Ps_stderr=None) -> float:
     return float(optimize.brentq(g, 1e-9, hi)) if g(hi) <= 0 else math.inf
 
 
+# ------------------------------------------------------------ one run's Ps and its wander
+def wander_sd(Ps, n_flow) -> float:
+    """How far one run's Ps (its profile window's mean) lies from its state's long-time mean,
+    one standard deviation: ``C |Ps| / sqrt(n_flow)`` with C =
+    :data:`granflow.reference.SEGREGATION_WANDER_C` (1.63), measured from long runs and
+    continuations at 284-7560 flow particles (the relative spread of profile-window means falls
+    as 1 / sqrt(N); :data:`granflow.reference.SEGREGATION_WANDER_SCALING`).  The segregated
+    state wanders over 40-300 time units, as long as a profile window, so the standard error
+    of a run's own windows misses most of it (2-8x at the default set-up).  NaN when ``Ps`` or
+    ``n_flow`` is not a finite positive number."""
+    from ..reference import SEGREGATION_WANDER_C
+
+    try:
+        Ps, n = float(Ps), float(n_flow)
+    except (TypeError, ValueError):
+        return math.nan
+    if not (math.isfinite(Ps) and math.isfinite(n) and n > 0):
+        return math.nan
+    return SEGREGATION_WANDER_C * abs(Ps) / math.sqrt(n)
+
+
+#: how a per-run Ps stderr is made (granflow.campaign.collect.segregation_fit)
+PS_STDERR_METHOD = ("the larger of the standard error of the mean of the run's per-window fits "
+                    "(decorrelated windows: Ps_windows_sem) and the wander of a profile window's "
+                    "Ps in time measured at the run's number of flow particles N (C Ps / sqrt(N), "
+                    "C = {c:.2f}: Ps_wander_sd; granflow.fitting.segregation.wander_sd)")
+
+
 # ----------------------------------------------------------- several runs at one size ratio
 #: said of a size ratio with a single run (granflow.reference.segregation_seed_scatter_note
 #: has the measured scatter between seeds, in the library's reductions_vs_paper)
-ONE_RUN_NOTE = ("one run at this ratio: its Ps stderr is within-run only (its profile "
-                "windows); the scatter between insertion seeds is not measured (at the default "
-                "set-up seeds scatter 2-9x more: reductions_vs_paper)")
+ONE_RUN_NOTE = ("one run at this ratio: its Ps stderr is its profile windows' or, where larger, "
+                "the wander in time measured at its number of particles (wander_sd); the "
+                "scatter between this campaign's insertion seeds is not measured (replicates)")
 
 
 def combine_Ps_runs(fits) -> list:
@@ -464,7 +492,8 @@ def combine_Ps_runs(fits) -> list:
     and where the runs agree better than their own errors say, those errors stand.  The 95 %
     interval uses Student's t with n - 1 degrees of freedom.  ``extra``: ``Ps_between_run_sd``
     (s), ``runs_combined`` (n), ``Ps_runs`` and ``Ps_runs_sem`` (each run's value and error),
-    ``Ps_within_run_sem`` (sqrt(mean sem_i^2) / sqrt(n): what the runs' own errors alone give).
+    ``Ps_within_run_sem`` (sqrt(mean sem_i^2) / sqrt(n): what the runs' own errors alone give),
+    ``Ps_windows_sem`` and ``Ps_wander_sd`` (the two parts of sem_i, each as rms / sqrt(n)).
     With no identified run, the first run's fit (by run name) stands for the ratio, unidentified,
     its message naming the others."""
     groups: dict = {}
@@ -536,6 +565,12 @@ def _combined_Ps_fit(runs) -> FitResult:
         Ps_within_run_sem=math.sqrt(within2 / n) if math.isfinite(within2) else math.nan,
         segregation_state=str(base.extra.get("segregation_state", "")),
     )
+    # the two parts of each run's own error (granflow.campaign.collect.segregation_fit), for
+    # the mean: its windows' and the wander at its number of particles
+    for key in ("Ps_windows_sem", "Ps_wander_sd"):
+        parts = np.array([f.extra.get(key, math.nan) for f in good], dtype=float)
+        extra[key] = (math.sqrt(float(np.mean(parts ** 2)) / n) if np.isfinite(parts).all()
+                      else math.nan)
     ratio = sd / math.sqrt(within2) if math.isfinite(within2) and within2 > 0 else math.nan
     message = (f"mean of {n} runs' T-eq. (28) fits ({', '.join(used)}): "
                f"Ps {', '.join(f'{x:.4g}' for x in v)}; spread between runs {sd:.3g} = "
