@@ -17,7 +17,11 @@ after ``--t-from`` (past the approach) and prints
 
     .venv/bin/python benchmarks/segregation_approach.py RUN --parent PARENT --json w.json
     .venv/bin/python benchmarks/segregation_wander.py w.json [w2.json ...] --t-from 1000
-        [--lengths 60 120 300]
+        [--lengths 60 120 300] [--n-flow N]
+
+``--n-flow N`` adds each spread relative to the mean times sqrt(N), the constant C of
+granflow.fitting.segregation.wander_sd (granflow.reference.SEGREGATION_WANDER_SCALING), and the
+relative spread that C predicts at this N.
 """
 
 from __future__ import annotations
@@ -85,7 +89,13 @@ def main(argv=None) -> int:
                     help="windows starting before this are the approach, left out")
     ap.add_argument("--lengths", type=float, nargs="+", default=[60.0, 120.0, 300.0],
                     help="averaging lengths L in time units (a profile window's length)")
+    ap.add_argument("--n-flow", type=int, default=None,
+                    help="the run's number of flow particles N: also print C = (sd of the "
+                         "L-unit means / mean) sqrt(N) and the relative spread granflow's "
+                         "wander_sd assumes (granflow.reference.SEGREGATION_WANDER_C / sqrt(N))")
     args = ap.parse_args(argv)
+    if args.n_flow is not None and args.n_flow <= 0:
+        ap.error(f"--n-flow must be a positive number of particles, got {args.n_flow}")
     for path in args.series:
         w = json.load(open(path))
         win = float(w["window"]["cg_window"] if isinstance(w["window"], dict) else w["window"])
@@ -99,6 +109,17 @@ def main(argv=None) -> int:
         for L, b in r["blocks"].items():
             print(f"   {L:6g}-unit means: {b['n']:3d}, sd {b['sd']:.3f} against their own "
                   f"stderrs {b['sem']:.3f}: {b['ratio']:.2f}x")
+        if args.n_flow is not None:
+            from granflow.reference import SEGREGATION_WANDER_C
+
+            root = math.sqrt(args.n_flow)
+            spreads = [(f"{win:g}-unit windows", r["sd"])] + [
+                (f"{L:g}-unit means", b["sd"]) for L, b in r["blocks"].items()]
+            print(f"   N = {args.n_flow}: " + "; ".join(
+                f"{name} {100 * sd / r['mean']:.2f} % (C {sd / r['mean'] * root:.3f})"
+                for name, sd in spreads)
+                + f"; granflow's wander_sd assumes {100 * SEGREGATION_WANDER_C / root:.2f} %"
+                f" (C {SEGREGATION_WANDER_C:.3f})")
     return 0
 
 

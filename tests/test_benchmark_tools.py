@@ -925,3 +925,12 @@ def test_segregation_wander_tells_an_honest_window_stderr_from_a_wandering_state
     assert sw.main([str(path), "--t-from", "1000"]) == 0
     out = capsys.readouterr().out
     assert "2950 windows of 20 over t = 1000-60000" in out and "60-unit means: 983" in out
+    # with the run's number of particles: C = relative spread x sqrt(N), and what granflow
+    # assumes (white noise of sd 0.3 about 5: 6 % for the windows, C = 0.06 * 10 at N = 100)
+    assert sw.main([str(path), "--t-from", "1000", "--n-flow", "100"]) == 0
+    out = capsys.readouterr().out
+    c_windows = float(out.split("20-unit windows ")[1].split("(C ")[1].split(")")[0])
+    assert c_windows == pytest.approx(0.6, rel=0.05)
+    assert "granflow's wander_sd assumes 16.31 % (C 1.631)" in out
+    with pytest.raises(SystemExit):
+        sw.main([str(path), "--t-from", "1000", "--n-flow", "0"])
