@@ -197,8 +197,8 @@ def test_default_campaign_covers_every_closure():
                 "moves Ps by 4.6 %") in t and "scaled by 23.5 d" in t, t
     # ... and, with one run per size ratio, that its Ps stderr omits the scatter between seeds,
     # with the scatter measured at the default set-up (3 seeds at sigma = 0.9: 9.4x)
-    assert ("sigma = 0.9: 3 seeds scatter by 0.54 against their own stderrs 0.057 (9.4x)"
-            in text), text
+    assert ("sigma = 0.9: 3 seeds scatter by 0.54 against their windows' stderrs 0.057 (9.4x; "
+            "1.4x against their stderrs with the wander)" in text), text
     # ... and that it is wander in time: two runs per ratio, continued, agree in mean (within
     # twice their combined autocorrelated stderr) while a profile window's Ps wanders about it
     assert "sigma = 0.9: means 4.64 and 4.51, a profile window's Ps spreading by 8-10 %" in text

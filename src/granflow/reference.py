@@ -539,8 +539,10 @@ SEGREGATION_WANDER_HELD_OUT = {
 
 
 def segregation_seed_scatter() -> dict:
-    """sigma -> (steady runs, their standard deviation, rms of their within-run stderrs,
-    ratio) of :data:`SEGREGATION_DEFAULT_REPLICATES` (ratios with two or more steady runs)."""
+    """sigma -> (steady runs, their standard deviation, rms of their windows' stderrs, ratio,
+    ratio against their stderrs with the wander at their number of particles: the per-run
+    stderr since 2026-12-07, granflow.fitting.segregation.wander_sd) of
+    :data:`SEGREGATION_DEFAULT_REPLICATES` (ratios with two or more steady runs)."""
     out = {}
     for sigma, runs in SEGREGATION_DEFAULT_REPLICATES.items():
         steady = [(p, se) for p, se, st, _ in runs if st == "steady"]
@@ -549,14 +551,17 @@ def segregation_seed_scatter() -> dict:
         ps = np.array([p for p, _ in steady])
         sd = float(ps.std(ddof=1))
         rms = float(np.sqrt(np.mean([se ** 2 for _, se in steady])))
-        out[sigma] = (len(steady), sd, rms, sd / rms)
+        rel = SEGREGATION_WANDER_C / math.sqrt(SEGREGATION_DEFAULT_N_FLOW[sigma])
+        total = float(np.sqrt(np.mean([max(se, rel * p) ** 2 for p, se in steady])))
+        out[sigma] = (len(steady), sd, rms, sd / rms, sd / total)
     return out
 
 
 def segregation_seed_scatter_note() -> str:
     """What one run per size ratio does not know (stated where a ratio has a single run)."""
-    parts = [f"sigma = {s:g}: {n} seeds scatter by {sd:.2g} against their own stderrs "
-             f"{rms:.2g} ({r:.1f}x)" for s, (n, sd, rms, r) in segregation_seed_scatter().items()]
+    parts = [f"sigma = {s:g}: {n} seeds scatter by {sd:.2g} against their windows' stderrs "
+             f"{rms:.2g} ({r:.1f}x; {rw:.1f}x against their stderrs with the wander)"
+             for s, (n, sd, rms, r, rw) in segregation_seed_scatter().items()]
     runs = []
     for sigma, seeds in SEGREGATION_DEFAULT_WANDER.items():
         means = " and ".join(f"{w['Ps']:.2f}" for w in seeds.values())
