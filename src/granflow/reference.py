@@ -465,15 +465,16 @@ SEGREGATION_DEFAULT_REPLICATES = {
 # state, whose Ps a 60-unit profile window samples with a spread of 8-10 % (0.9) and 9-10 %
 # (0.75) of it; the default campaign's own runs stopped at 3.90 (0.6 below the long mean) and
 # 8.97 (a lower bound that holds).
+# sd_300: the same for 300-unit means (added 2026-12-07 late, SEGREGATION_WANDER_SCALING).
 SEGREGATION_DEFAULT_WANDER = {
     0.9: {1: dict(Ps=4.638, stderr=0.193, sd_60=0.482, block_200=(3.90, 5.29), acf_time=260.0,
-                  t=(1000.0, 3421.0)),
+                  t=(1000.0, 3421.0), sd_300=0.465),
           2: dict(Ps=4.514, stderr=0.111, sd_60=0.360, block_200=(4.07, 5.06), acf_time=140.0,
-                  t=(1000.0, 3311.0))},
+                  t=(1000.0, 3311.0), sd_300=0.268)},
     0.75: {1: dict(Ps=10.630, stderr=0.326, sd_60=0.969, block_200=(9.13, 11.50), acf_time=80.0,
-                   t=(900.0, 2271.0)),
+                   t=(900.0, 2271.0), sd_300=0.635),
            2: dict(Ps=10.482, stderr=0.272, sd_60=1.057, block_200=(9.66, 11.14), acf_time=40.0,
-                   t=(900.0, 2141.0))},
+                   t=(900.0, 2141.0), sd_300=0.612)},
 }
 
 
@@ -504,14 +505,12 @@ SEGREGATION_WINDOW_SEM_RATIO = {60.0: (2.0, 8.1), 120.0: (2.0, 6.9), 300.0: (1.4
 # scatter by 9.4 % at N = 243: C 1.47, not in the rms).
 SEGREGATION_WANDER_SCALING = {
     "points": [
-        ("default 10 x 5, depth 8, 25 deg", 0.9, 346, 60.0, 0.482 / 4.638, 0.465 / 4.638,
-         "seed 1 continued, t >= 1000"),
-        ("default 10 x 5, depth 8, 25 deg", 0.9, 346, 60.0, 0.360 / 4.514, 0.268 / 4.514,
-         "seed 2 continued, t >= 1000"),
-        ("default 10 x 5, depth 8, 25 deg", 0.75, 284, 60.0, 0.969 / 10.630, 0.635 / 10.630,
-         "seed 1 continued, t >= 900"),
-        ("default 10 x 5, depth 8, 25 deg", 0.75, 284, 60.0, 1.057 / 10.482, 0.612 / 10.482,
-         "seed 2 continued, t >= 900"),
+        # the default set-up's four continued runs (SEGREGATION_DEFAULT_WANDER)
+        *[("default 10 x 5, depth 8, 25 deg", sigma, SEGREGATION_DEFAULT_N_FLOW[sigma], 60.0,
+           w["sd_60"] / w["Ps"], w["sd_300"] / w["Ps"],
+           f"seed {seed} continued, t >= {w['t'][0]:g}")
+          for sigma, seeds in SEGREGATION_DEFAULT_WANDER.items() for seed, w in seeds.items()],
+        # the paper set-up's 1/sigma = 1.25 tails (SEGREGATION_PAPER_SETUP["bounds"][1.25])
         ("paper 83.3 x 5, depth 24, 25 deg", 0.8, 7560, 50.0, 0.118 / 5.459, 0.126 / 5.459,
          "from below (mixed), t >= 2799"),
         ("paper 83.3 x 5, depth 24, 25 deg", 0.8, 7560, 50.0, 0.074 / 5.768, 0.084 / 5.768,
