@@ -180,8 +180,8 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
     of the correlated profile points understates it 5-10 times -- and the wander of the
     segregated state in time measured at the run's number of flow particles
     (:func:`granflow.fitting.segregation.wander_sd`, ``extra["Ps_wander_sd"]``), which the
-    windows of one run understate another 2-8 times (``stderr_method`` says which and both
-    values); ``extra["Ps_std"]`` holds the windows' spread.
+    windows of one run understate another 2-8 times (``stderr_method`` says how, the two
+    extras hold both values); ``extra["Ps_std"]`` holds the windows' spread.
     """
     import xarray as xr
 
