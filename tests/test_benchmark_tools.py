@@ -934,3 +934,50 @@ def test_segregation_wander_tells_an_honest_window_stderr_from_a_wandering_state
     assert "granflow's wander_sd assumes 16.31 % (C 1.631)" in out
     with pytest.raises(SystemExit):
         sw.main([str(path), "--t-from", "1000", "--n-flow", "0"])
+
+
+def test_segregation_trend_calibration_replays_the_still_moving_rule_on_known_answers(
+        tmp_path, capsys):
+    """benchmarks/segregation_trend_calibration.py on series with known answers.  A stationary
+    wander (AR(1) over 20-unit windows, autocorrelation time 100 units, 9 % spread: the default
+    set-up's, measured) has no drift, yet the 5 % rule flags a third or more of its 10-window
+    stretches, with the trend pointing towards the long mean in about half of them (a coin
+    flip: the "one-sided bound" it makes is wrong half the time); the rule with the wander's
+    tolerance (3 C / sqrt(N) at N = 396, where C / sqrt(N) is that 8.2 %) flags at most 8 %.
+    An approach (Ps relaxing from 0 to 10 with a time of 150 units, as the default's mixed
+    starts do, the same wander on top) keeps flags under both rules, and every flag of the
+    wander rule points towards the plateau."""
+    from granflow.steady.timeseries import ar1_noise
+
+    tc = _load("segregation_trend_calibration")
+    rng = np.random.default_rng(8)
+    n = 1500
+    t = 20.0 * np.arange(n)
+    steady = 10.0 * (1.0 + ar1_noise(n, rng, math.exp(-20.0 / 100.0), 0.09))
+    r = tc.replay(t, steady, n_flow=396, t_from=0.0, windows=(4, 10))
+    assert abs(r["mean"] - 10.0) < 0.2
+    c = r[10]
+    assert c["flags_5"] / c["stretches"] > 0.25
+    assert 0.35 < c["toward_5"] / c["flags_5"] < 0.65
+    assert c["flags_wander"] / c["stretches"] < 0.08
+    assert r[4]["flags_wander"] / r[4]["stretches"] < 0.03
+    # an approach to the same plateau, then the plateau
+    t = 20.0 * np.arange(440)
+    wander = 1.0 + ar1_noise(t.size, np.random.default_rng(9), math.exp(-0.2), 0.09)
+    series = 10.0 * (1.0 - np.exp(-(t + 10.0) / 150.0)) * wander
+    a = tc.replay(t, series, n_flow=396, t_from=800.0, t_to=800.0, windows=(6,))[6]
+    assert a["flags_wander"] >= 0.2 * a["stretches"]
+    assert a["toward_wander"] == a["flags_wander"] and a["flags_5"] >= a["flags_wander"]
+    with pytest.raises(ValueError, match="n_flow"):
+        tc.replay(t, series, n_flow=0, t_from=800.0)
+    with pytest.raises(ValueError, match="windows = 3"):
+        tc.replay(t, series, n_flow=396, t_from=800.0, windows=(3,))
+    # the command line (FILE:T_FROM:N) on segregation_approach.py's --json output
+    path = tmp_path / "w.json"
+    path.write_text(json.dumps({"window": 20.0, "windows": {
+        "t_start": t.tolist(), "Ps": series.tolist()}}))
+    assert tc.main([f"{path}:800:396", "--windows", "4", "10"]) == 0
+    out = capsys.readouterr().out
+    assert "pooled n = 10" in out and "wander rule" in out
+    with pytest.raises(SystemExit):
+        tc.main([f"{path}:800"])

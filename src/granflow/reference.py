@@ -451,6 +451,13 @@ SEGREGATION_DEFAULT_REPLICATES = {
     0.9: [(3.904, 0.029, "steady", 1421.0), (4.952, 0.026, "steady", 1311.0),
           (4.216, 0.091, "steady", 1151.0)],
 }
+#: the same runs' segregated states under today's rule (2026-12-08: a Ps trend counts only
+#: beyond 3 C / sqrt(N), granflow.campaign.collect.ps_trend_tolerance): the three runs above
+#: that were "drifting" (trends +20.2, +15.5 and -11.7 % against tolerances of 31, 29 and 29 %)
+#: are steady (results/replicates-segregation-wander, library v4, re-derived with --forcerun row)
+SEGREGATION_DEFAULT_REPLICATES_STATE_NOW = {
+    0.6: ("steady", "steady", "steady"), 0.75: ("steady", "steady", "steady"),
+    0.9: ("steady", "steady", "steady")}
 
 # Is that scatter wander in time or a state each seed keeps?  Runs of seeds 1 and 2 continued
 # from their final states (granflow simulate --from, early_stop false; results/seg-wander09,
@@ -537,14 +544,59 @@ SEGREGATION_WANDER_HELD_OUT = {
 }
 
 
+# Does a trend of Ps over a run's profile windows say the run is still moving?  The campaign
+# counts a run as drifting (its Ps a one-sided bound on the side the trend points to) when the
+# trend is significant and larger than a tolerance (granflow.campaign.collect.ps_still_moving).
+# Replayed 2026-12-08 (benchmarks/segregation_trend_calibration.py) on every stretch of n
+# consecutive windows (20 time units each at the default set-up and its longer boxes, 50 at the
+# paper's) of the long runs of SEGREGATION_WANDER_SCALING and SEGREGATION_WANDER_HELD_OUT:
+# (series, N flow particles, steady from t (chain time; the mean after it is the long mean),
+# {n: (stretches, flags of the 5 % rule, of them pointing towards the long mean, flags of the
+# rule with the wander tolerance 3 C / sqrt(N), of them towards)}).  On the steady tails the
+# 5 % rule (before 2026-12-08) flagged 15-56 %, half of them pointing the wrong way; the wander
+# rule 0-12 % (pooled 0.8, 2.6, 3.6 % at n = 4, 6, 10 on the four default tails, on which its
+# multiple 3 was chosen as the smallest of 1.5, 2, 2.5, 3 with a pooled rate <= 5 %; the other
+# four tails, seen at the same time, 0, 1.0, 4.5 %).  On the approaches of the two mixed starts
+# it keeps 26 of 40, 35 of 54 and 42 of 55 of the 5 % rule's flags, all but one of them
+# pointing towards the plateau.
+SEGREGATION_TREND_CALIBRATION = {
+    "steady": [
+        ("default 10 x 5, sigma 0.9, seed 1 continued", 346, 1000.0,
+         {4: (118, 20, 13, 0, 0), 6: (116, 38, 19, 0, 0), 10: (112, 55, 28, 0, 0)}),
+        ("default 10 x 5, sigma 0.9, seed 2 continued", 346, 1000.0,
+         {4: (113, 18, 9, 0, 0), 6: (111, 40, 16, 0, 0), 10: (107, 60, 25, 4, 0)}),
+        ("default 10 x 5, sigma 0.75, seed 1 continued", 284, 900.0,
+         {4: (65, 10, 4, 0, 0), 6: (63, 10, 5, 2, 1), 10: (59, 30, 15, 3, 0)}),
+        ("default 10 x 5, sigma 0.75, seed 2 continued", 284, 900.0,
+         {4: (59, 13, 6, 3, 1), 6: (57, 21, 13, 7, 4), 10: (53, 16, 8, 5, 4)}),
+        ("20 x 5, sigma 0.75", 569, 900.0,
+         {4: (102, 18, 9, 0, 0), 6: (100, 31, 19, 0, 0), 10: (96, 38, 20, 4, 4)}),
+        ("40 x 5, sigma 0.75", 1138, 900.0,
+         {4: (62, 12, 6, 0, 0), 6: (60, 19, 10, 2, 1), 10: (56, 22, 12, 4, 3)}),
+        ("paper 83.3 x 5, 1/sigma 1.25, from below", 7560, 2799.0,
+         {4: (21, 0, 0, 0, 0), 6: (19, 0, 0, 0, 0), 10: (15, 0, 0, 0, 0)}),
+        ("paper 83.3 x 5, 1/sigma 1.25, from above", 7560, 903.0,
+         {4: (18, 0, 0, 0, 0), 6: (16, 0, 0, 0, 0), 10: (12, 0, 0, 0, 0)}),
+    ],
+    "approach": [
+        ("20 x 5, sigma 0.75, t < 900", 569, 900.0,
+         {4: (42, 22, 22, 10, 10), 6: (40, 30, 27, 18, 18), 10: (36, 29, 29, 22, 22)}),
+        ("40 x 5, sigma 0.75, t < 900", 1138, 900.0,
+         {4: (42, 18, 17, 16, 16), 6: (40, 24, 23, 17, 16), 10: (36, 26, 24, 20, 20)}),
+    ],
+}
+
+
 def segregation_seed_scatter() -> dict:
     """sigma -> (steady runs, their standard deviation, rms of their windows' stderrs, ratio,
     ratio against their stderrs with the wander at their number of particles: the per-run
     stderr since 2026-12-07, granflow.fitting.segregation.wander_sd) of
-    :data:`SEGREGATION_DEFAULT_REPLICATES` (ratios with two or more steady runs)."""
+    :data:`SEGREGATION_DEFAULT_REPLICATES` (ratios with two or more runs steady under today's
+    rule, :data:`SEGREGATION_DEFAULT_REPLICATES_STATE_NOW`)."""
     out = {}
     for sigma, runs in SEGREGATION_DEFAULT_REPLICATES.items():
-        steady = [(p, se) for p, se, st, _ in runs if st == "steady"]
+        states = SEGREGATION_DEFAULT_REPLICATES_STATE_NOW[sigma]
+        steady = [(p, se) for (p, se, _, _), st in zip(runs, states) if st == "steady"]
         if len(steady) < 2:
             continue
         ps = np.array([p for p, _ in steady])

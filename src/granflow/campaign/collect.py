@@ -131,22 +131,51 @@ def small_fraction_profiles(ds, t_from: float):
 
 
 #: A run's Ps still moves over its profile windows when their linear trend is significant at
-#: this level and changes Ps by more than PS_TREND_TOLERANCE over them.  Measured 2026-11-29
-#: (depth 8, 10 x 5, sigma = 0.75, paper species): a mixed start shown steady by the centre of
-#: mass at t = 771 gave Ps 8.97 with a trend of +15.5 % (p = 0.005) over its windows; the same
-#: run continued to t = 2000 has 150-unit means of Ps between 9.2 and 12.1 (mean 10.8 over
-#: 760-2000: Ps fluctuates on a time scale of 100-300 in so small a box), and a segregated
-#: start 10.9-13.1 over 1580-2000 (11.47 at its own stop, t = 211)
+#: this level and changes Ps by more than the run's trend tolerance over them: the larger of
+#: PS_TREND_TOLERANCE and PS_TREND_WANDER_MULTIPLE times the relative wander of Ps at the run's
+#: number of flow particles (C / sqrt(N), :func:`granflow.fitting.segregation.wander_sd`).
+#: Measured 2026-11-29 (depth 8, 10 x 5, sigma = 0.75, paper species): a mixed start shown
+#: steady by the centre of mass at t = 771 gave Ps 8.97 with a trend of +15.5 % (p = 0.005) over
+#: its windows; the same run continued to t = 2000 has 150-unit means of Ps between 9.2 and 12.1
+#: (mean 10.8 over 760-2000: Ps fluctuates on a time scale of 100-300 in so small a box), and a
+#: segregated start 10.9-13.1 over 1580-2000 (11.47 at its own stop, t = 211).  The 5 % rule
+#: flagged that run; with the wander's tolerance (29 % at its 284 particles) it is steady at
+#: 8.97 +- 0.87, its long mean 10.63 (SEGREGATION_DEFAULT_WANDER) 1.9 stderrs above.
 PS_TREND_P = 0.05
 PS_TREND_TOLERANCE = 0.05
+#: Why the wander sets the tolerance (measured 2026-12-08,
+#: benchmarks/segregation_trend_calibration.py, granflow.reference.SEGREGATION_TREND_CALIBRATION):
+#: replayed on every 4-, 6- and 10-window stretch of the long steady tails of eight runs (the
+#: default set-up's four continued runs, the 20 x 5 and 40 x 5 boxes, the paper set-up's two
+#: 1/sigma = 1.25 tails), the 5 % rule alone flagged 15-22 % of 4-window stretches and 16-56 %
+#: of 6- and 10-window ones at 284-1138 particles, and a flagged trend pointed towards the
+#: tail's long mean in half of them (a coin flip, as time-reversal symmetry of a stationary
+#: wander says), so the "one-sided bound" such a flag makes of the run's Ps was wrong half the
+#: time.  With the tolerance at 3 C / sqrt(N) the four default tails flag 0.8, 2.6, 3.6 %
+#: (pooled at n = 4, 6, 10; the multiple chosen on them as the smallest of 1.5, 2, 2.5, 3 with a
+#: pooled rate <= 5 %), the other four 0, 1.0, 4.5 %; on the approaches of the mixed starts
+#: (t < 900) it keeps 103 of the 5 % rule's 149 flags, all but one pointing towards the plateau.
+PS_TREND_WANDER_MULTIPLE = 3.0
+
+
+def ps_trend_tolerance(Ps: float, wander: float) -> float:
+    """The relative change over a run's profile windows that counts as Ps still moving: the
+    larger of :data:`PS_TREND_TOLERANCE` and :data:`PS_TREND_WANDER_MULTIPLE` times the wander
+    ``wander / Ps`` (PS_TREND_TOLERANCE alone where the wander is unknown)."""
+    rel = abs(wander / Ps) if Ps and math.isfinite(Ps) and math.isfinite(wander) else math.nan
+    return max(PS_TREND_TOLERANCE, PS_TREND_WANDER_MULTIPLE * rel) if math.isfinite(rel) \
+        else PS_TREND_TOLERANCE
 
 
 def ps_still_moving(extra: dict) -> bool:
     """True when a segregation fit's per-window Ps trend (``Ps_trend_change``, ``Ps_trend_p``
-    of :func:`segregation_fit`) is significant and larger than :data:`PS_TREND_TOLERANCE`."""
+    of :func:`segregation_fit`) is significant and larger than the run's ``Ps_trend_tolerance``
+    (:func:`ps_trend_tolerance`; :data:`PS_TREND_TOLERANCE` for fits without it)."""
     ch, p = extra.get("Ps_trend_change"), extra.get("Ps_trend_p")
+    tol = extra.get("Ps_trend_tolerance", PS_TREND_TOLERANCE)
+    tol = PS_TREND_TOLERANCE if tol is None or not math.isfinite(tol) else tol
     return (ch is not None and p is not None and math.isfinite(ch) and math.isfinite(p)
-            and p < PS_TREND_P and abs(ch) > PS_TREND_TOLERANCE)
+            and p < PS_TREND_P and abs(ch) > tol)
 
 
 def count_as_drifting(fit):
@@ -159,7 +188,9 @@ def count_as_drifting(fit):
     return fit.replace(
         selection=fit.selection + (
             f"; Ps still moving over its windows ({100 * fit.extra['Ps_trend_change']:+.1f} %"
-            f", trend p = {fit.extra['Ps_trend_p']:.2g}): counted as drifting"),
+            f", trend p = {fit.extra['Ps_trend_p']:.2g}, beyond the "
+            f"{100 * fit.extra.get('Ps_trend_tolerance', PS_TREND_TOLERANCE):.1f} % its wander"
+            " allows): counted as drifting"),
         extra=dict(fit.extra, segregation_state="drifting", Ps_still_moving=True))
 
 
@@ -247,6 +278,8 @@ def segregation_fit(run_dir, sigma: float, law: str, window: float):
         wander = wander_sd(fit.params["Ps"], n_flow)
         fit.extra["Ps_windows_sem"] = sem
         fit.extra["Ps_wander_sd"] = wander
+        # a trend smaller than the wander can make over the windows is not a drift
+        fit.extra["Ps_trend_tolerance"] = ps_trend_tolerance(fit.params["Ps"], wander)
         if math.isfinite(wander):
             total = max(sem, wander) if math.isfinite(sem) else wander
             method = PS_STDERR_METHOD.format(c=SEGREGATION_WANDER_C)
