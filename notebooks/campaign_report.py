@@ -526,6 +526,10 @@ savefig(fig, "segregation")
 # and the wander of a profile window's Ps in time at the run's N flow particles, C Ps / sqrt(N)
 # with C measured on long runs ("wander at N"; granflow.fitting.segregation.wander_sd): the
 # segregated state wanders over 40-300 time units, which one run's windows do not see.
+# "Ps trend" is the linear change of Ps over the profile's windows (relative to its mean, with
+# its p-value); a run counts as drifting only when it is significant and beyond "trend
+# tolerance", 3 C / sqrt(N) or 5 % (granflow.campaign.collect.ps_trend_tolerance): a smaller
+# trend is what the wander alone makes, pointing away from the long mean as often as towards it.
 
 # %%
 cmp_rows = []
@@ -542,6 +546,8 @@ for item in sorted(seg_runs, key=lambda d: d["fit"]["coords"].get("sigma", 1)):
         "profile from t": ex.get("profile_time_from"),
         "Ps stderr": (item["fit"].get("stderr") or {}).get("Ps"),
         "windows' sem": ex.get("Ps_windows_sem"), "wander at N": ex.get("Ps_wander_sd"),
+        "Ps trend": ex.get("Ps_trend_change"), "trend p": ex.get("Ps_trend_p"),
+        "trend tolerance": ex.get("Ps_trend_tolerance"),
     })
 display(pd.DataFrame(cmp_rows).round(4) if cmp_rows else Markdown("no segregation runs"))
 
