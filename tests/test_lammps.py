@@ -525,6 +525,58 @@ def test_lammps_engine_run_writes_the_numba_outputs(tmp_path):
     assert r_lmp["n_flow"] == r_num["n_flow"] == 72
 
 
+def test_data_file_carries_a_saved_states_velocities_and_spins(tmp_path):
+    """A restart writes the state's velocities and angular velocities (``Velocities``:
+    atom-ID vx vy vz wx wy wz), exactly; a state at rest writes no such section."""
+    rng = np.random.default_rng(4)
+    n = 5
+    pos = rng.uniform(0, 4, (n, 3))
+    diam = np.ones(n)
+    vel, omega = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    path = tmp_path / "chute.data"
+    write_data(path, pos, diam, diam, np.zeros(n, int), 4.0, 4.0, vel=vel, omega=omega)
+    rows = np.loadtxt(io.StringIO(path.read_text().split("Velocities")[1]))
+    np.testing.assert_array_equal(rows[:, 0], np.arange(1, n + 1))
+    np.testing.assert_array_equal(rows[:, 1:4], vel)
+    np.testing.assert_array_equal(rows[:, 4:7], omega)
+    write_data(path, pos, diam, diam, np.zeros(n, int), 4.0, 4.0, vel=0 * vel)
+    assert "Velocities" not in path.read_text()
+    with pytest.raises(ValueError, match="vel and omega"):
+        write_data(path, pos, diam, diam, np.zeros(n, int), 4.0, 4.0, vel=vel[:2])
+
+
+@needs_lammps
+def test_lammps_restart_from_a_saved_state_continues_the_flow(tmp_path):
+    """``--from STATE`` with engine: lammps starts LAMMPS from the state's positions,
+    velocities and spins: the kinetic energy at t = 0 is the parent's last, and over the first
+    0.3 time units it follows the numba engine's continuation within 1 % (the tangential
+    springs, not carried, restart from zero; the provenance says so)."""
+    from granflow.simulate import prepare_base_file, simulate
+
+    base = tmp_path / "base.npy"
+    prepare_base_file(1.0, 6.0, 4.0, 1, base, base_layers=4.0, settle_time=10.0)
+    params = dict(theta=26.0, H=3.0, lam=1.0, Lx=6.0, Ly=4.0, t_c=0.02, t_end=6.0,
+                  base_layers=4.0, sample_interval=0.04, averaging_time=2.0, check_every=1.0,
+                  cg_window=1.0, early_stop=False)
+    simulate(params, tmp_path / "parent", base_file=base)
+    state = tmp_path / "parent" / "final_state.npz"
+    short = dict(params, t_end=1.0)
+    simulate(short, tmp_path / "numba", base_file=base, from_state=state)
+    r = simulate(dict(short, engine="lammps"), tmp_path / "lammps", base_file=base,
+                 from_state=state)
+    assert r["parent"]["parent_contact_history"].startswith("not carried")
+    parent = xr.open_dataset(tmp_path / "parent" / "series.nc")
+    a = xr.open_dataset(tmp_path / "numba" / "series.nc")
+    b = xr.open_dataset(tmp_path / "lammps" / "series.nc")
+    assert parent.e_kin.values[-1] > 1.0  # a moving state
+    assert b.e_kin.values[0] == pytest.approx(parent.e_kin.values[-1], rel=1e-9)
+    early = a.t.values <= 0.3
+    np.testing.assert_allclose(b.e_kin.values[early], a.e_kin.values[early], rtol=0.01)
+    with pytest.raises(ValueError, match="--top-up needs the numba engine"):
+        simulate(dict(short, engine="lammps"), tmp_path / "t", base_file=base,
+                 from_state=state, top_up=True)
+
+
 @needs_lammps
 def test_lammps_engine_on_two_mpi_ranks_follows_the_one_rank_run(tmp_path):
     """threads = 2 runs LAMMPS as ``mpirun -np 2`` (a 1 x 1 x 2 processor grid): the same

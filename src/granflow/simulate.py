@@ -710,11 +710,17 @@ def simulate(params: dict, out_dir, base_file=None, threads: int | None = 1,
         raise ValueError(f"max_overlap = {p['max_overlap']:g}: the {engine} engine's overlap "
                          "guard is fixed at 0.05 of the smallest diameter; leave it null")
     if from_state is not None:  # checked before any compute, also when resuming
-        if engine != "numba":
-            raise ValueError(f"engine: a restart from a saved state (--from) needs the numba "
-                             f"engine, not {engine!r}")
+        if engine != "numba" and top_up:
+            raise ValueError(f"engine: a restart with --top-up needs the numba engine, not "
+                             f"{engine!r} (it pours the missing particles with granflow's "
+                             "engine)")
+        # LAMMPS takes the state's positions, velocities and spins (not its tangential
+        # springs, which restart from zero: the provenance says so)
         # the top-up is poured below, only when no checkpoint is resumed
         system, parent = restart_state(from_state, cfg, top_up=top_up, pour=False)
+        if engine == "lammps":
+            parent["parent_contact_history"] = ("not carried: LAMMPS restarts the tangential "
+                                                "springs from zero")
     identity = run_identity(p, base_file, parent, top_up)
     if ckpt.exists() and engine == "numba":  # a checkpoint of other physics is moved aside
         keep_matching_checkpoint(ckpt, identity)

@@ -44,11 +44,14 @@ def _g(x) -> str:
     return f"{float(x):.17g}"
 
 
-def write_data(path, pos, diameter, mass, ptype, Lx, Ly, title="granflow chute"):
+def write_data(path, pos, diameter, mass, ptype, Lx, Ly, title="granflow chute", vel=None,
+               omega=None):
     """LAMMPS data file (``atom_style sphere``) of the given particles, written atomically.
 
     The z extent is the particles' range plus two diameters (the box is shrink-wrapped in z,
-    ``boundary p p m``, so it only has to contain them).
+    ``boundary p p m``, so it only has to contain them).  ``vel`` / ``omega`` ((N, 3), a
+    restart from a saved state): a ``Velocities`` section (``atom-ID vx vy vz wx wy wz``);
+    without them, or when both are zero, none (LAMMPS starts every particle at rest).
     """
     pos = np.asarray(pos, dtype=np.float64)
     diameter = np.asarray(diameter, dtype=np.float64)
@@ -79,6 +82,15 @@ def write_data(path, pos, diameter, mass, ptype, Lx, Ly, title="granflow chute")
     # atom-ID atom-type diameter density x y z ix iy iz
     np.savetxt(buf, rows, fmt=["%d", "%d", "%.17g", "%.17g", "%.17g", "%.17g", "%.17g",
                                "%d", "%d", "%d"])
+    v = np.zeros((n, 3)) if vel is None else np.asarray(vel, dtype=np.float64)
+    w = np.zeros((n, 3)) if omega is None else np.asarray(omega, dtype=np.float64)
+    if v.shape != (n, 3) or w.shape != (n, 3):
+        raise ValueError("write_data: vel and omega must be (N, 3) like pos")
+    if v.any() or w.any():
+        buf.write("\nVelocities\n\n")
+        # atom-ID vx vy vz wx wy wz (atom_style sphere: angular velocity, not momentum)
+        np.savetxt(buf, np.column_stack([np.arange(1, n + 1), v, w]),
+                   fmt=["%d"] + ["%.17g"] * 6)
     atomic_write_bytes(path, buf.getvalue().encode())
 
 

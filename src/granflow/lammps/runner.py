@@ -194,9 +194,12 @@ class LammpsChute(SnapshotSystem):
         """Write chute.data and in.granflow into the run folder (dumps to the given names)."""
         self.folder.mkdir(parents=True, exist_ok=True)
         s = self.initial
+        # a restart from a saved state carries its velocities and spins (a fresh chute is at
+        # rest: no Velocities section); its tangential springs are not carried (LAMMPS
+        # reads no contact history from a data file): they restart from zero
         write_data(self.folder / "chute.data", s.pos, 2.0 * s.radius, s.mass, s.ptype, s.Lx, s.Ly,
                    title=f"granflow chute theta={self.cfg.theta:g} H={self.cfg.H:g} "
-                         f"lambda={self.cfg.lam:g}")
+                         f"lambda={self.cfg.lam:g}", vel=s.vel, omega=s.omega)
         return write_input(self.folder / "in.granflow", tables=self.tables, gravity=s.gvec,
                            dt=s.dt, n_steps=self.n_steps, sample_every=self.sample_every,
                            skin=s.skin, n_types=len(s.interactions.type_names),
