@@ -188,8 +188,9 @@ def semantic_errors(config: dict) -> list[str]:
             out += _lammps_errors(kind, c, lams)
             if kind == "chute" and c.get("restart_from_neighbour"):
                 out.append("config key campaigns.chute.restart_from_neighbour = true with engine "
-                           "'lammps': a restart from a saved state needs the numba engine; "
-                           "allowed: false, or engine 'numba'")
+                           "'lammps': neighbour restarts (--from-if-steady) are run by the "
+                           "numba engine only (a LAMMPS restart does not carry the tangential "
+                           "springs); allowed: false, or engine 'numba'")
         if kind == "chute":
             b = c.get("hstop_bisection") or {}
             if b.get("enabled"):
