@@ -656,6 +656,10 @@ def test_check_config_refuses_what_lammps_cannot_run():
     assert "campaigns.chute.engine = 'lammps' with contact_law ['plastic']" in msg
     assert "campaigns.chute.engine = 'lammps' with lambda = 0 (flat wall)" in msg
     cfg = _tiny("lammps")
+    cfg["campaigns"]["chute"]["restart_from_neighbour"] = True
+    with pytest.raises(ValueError, match="neighbour restarts .* numba engine only"):
+        check_config(cfg, schema)
+    cfg = _tiny("lammps")
     cfg["campaigns"]["chute"]["engine"] = "gromacs"
     with pytest.raises(ValueError, match=r"campaigns.chute.engine = 'gromacs': must be one of "
                                          r"\['numba', 'lammps'\]"):
