@@ -428,6 +428,16 @@ def test_the_paper_setup_profile_starts_at_1_25_bound_k_as_recorded():
         assert wand.params[name] == pytest.approx(rec_w[name][0], abs=0.002)
         assert wand.stderr[name] == pytest.approx(rec_w[name][1], rel=0.01)
     assert wand.diagnostics["birge_ratio"] == pytest.approx(rec_w["birge"], abs=0.01)
+    loo = [wand.diagnostics["heldout_z"][str(i)] for i in range(len(x))]
+    np.testing.assert_allclose(loo, rec_w["heldout_z"], atol=0.006)
+    assert wand.diagnostics["heldout_max_abs_z"] < wand.diagnostics["heldout_limit"]
+    # what it predicts at 1/sigma = 1.1, the ratio not yet run to its steady state (the
+    # paper's law gives 2.98 there, 2.1 of these stderrs below)
+    cov = np.array(wand.extra["covariance_free"])
+    P, k = wand.params["Pmax"], wand.params["k"]
+    grad = np.array([1 - math.exp(-0.1 * k), 0.1 * P * math.exp(-0.1 * k)])
+    pred = (P * (1 - math.exp(-0.1 * k)), math.sqrt(grad @ cov @ grad))
+    assert pred == pytest.approx(rec_w["Ps_at_1.1"], abs=0.001)
     assert every.diagnostics["birge_ratio"] > 5 * wand.diagnostics["birge_ratio"]
     assert wand.params["Pmax"] / 7.35 - 1 == pytest.approx(-0.042, abs=0.002)
     assert 2.0 < (wand.params["k"] - 5.21) / wand.stderr["k"] < 2.5

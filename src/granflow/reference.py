@@ -360,7 +360,15 @@ SEGREGATION_PAPER_SETUP = {
             # floor measured on the 1.25 tails accounts for most of the other ratios' scatter,
             # Birge 9.6 -> 1.75): Pmax 4.2 % below the paper's (z -2.3), k 22 % above (z +2.2)
             "all_starts_with_wander": {"Pmax": (7.043, 0.132), "k": (6.374, 0.518),
-                                       "birge": 1.75}},
+                                       "birge": 1.75,
+                                       # leave-one-out z of the 7 points (fit_Ps_law's
+                                       # heldout_z; 1/sigma 2, 2, 2, 1.75, 1.5, 1.25, 1.25):
+                                       # max |z| 2.04 at 1.75 against its limit 3.55
+                                       "heldout_z": (-1.08, -0.28, 0.75, 2.04, -1.04, -0.89,
+                                                     1.22),
+                                       # its prediction at 1/sigma = 1.1 (delta method; one
+                                       # run there adds its wander at 8757 particles, 0.058)
+                                       "Ps_at_1.1": (3.319, 0.158)}},
     # runs stopped while their segregated state still drifted, each a one-sided bound on its
     # steady Ps (2026-12-07, seed 1, one core each on a 2-vCPU Zen 3 host): at 1/sigma = 1.25,
     # started on T-eq. 28's profiles at Ps 3.5 and 7 (start~profile3.5, start~profile7), run to
