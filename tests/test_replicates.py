@@ -257,3 +257,26 @@ def test_a_trend_within_the_wander_is_not_counted_as_drift_measured_on_long_runs
     # the tolerance those flags were replayed with, at the default's 346 particles: 26 %
     assert ps_trend_tolerance(4.6, 4.6 * SEGREGATION_WANDER_C / math.sqrt(346)) == \
         pytest.approx(PS_TREND_WANDER_MULTIPLE * 0.0877, rel=0.01)
+
+
+def test_an_independent_engine_wanders_as_granflow_does():
+    """LAMMPS (pair_style granular, the same species) continuing granflow's sigma = 0.75
+    default-set-up state for 900 time units (SEGREGATION_WANDER_LAMMPS): its 60-unit means of
+    Ps spread by C / sqrt(N) within 30 % of granflow's C (1.63), its windows' own stderrs
+    understate that 2-3x as granflow's do, its mean lies within 2 combined stderrs of both
+    granflow runs' long means, and the wander trend rule (chosen before this run) flags at
+    most 10 % of its stretches where the 5 % rule flags half of the 10-window ones."""
+    from granflow.reference import (SEGREGATION_DEFAULT_WANDER, SEGREGATION_WANDER_C,
+                                    SEGREGATION_WANDER_LAMMPS as lmp)
+
+    pred = SEGREGATION_WANDER_C / math.sqrt(lmp["n_flow"])
+    assert lmp["rel_sd_60"] == pytest.approx(lmp["sd_60"] / lmp["Ps"], abs=5e-4)
+    assert lmp["C_60"] == pytest.approx(lmp["rel_sd_60"] * math.sqrt(lmp["n_flow"]), abs=0.005)
+    assert abs(lmp["rel_sd_60"] / pred - 1.0) <= 0.30
+    assert 2.0 <= lmp["sem_ratio_60"] <= 3.0
+    for seed, w in SEGREGATION_DEFAULT_WANDER[0.75].items():
+        assert abs(lmp["Ps"] - w["Ps"]) < 2 * math.hypot(lmp["stderr"], w["stderr"]), seed
+    for n, (s, f5, t5, fw, tw) in lmp["trend_flags"].items():
+        assert fw / s <= 0.1, n
+    s, f5, _, fw, _ = lmp["trend_flags"][10]
+    assert f5 / s >= 0.5 and fw < f5

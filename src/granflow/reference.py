@@ -595,6 +595,26 @@ SEGREGATION_TREND_CALIBRATION = {
 }
 
 
+# Is the wander physics or granflow's engine?  An independent engine on the same state
+# (2026-12-08): LAMMPS pair_style granular (engine: lammps, the same species pair by pair)
+# continued granflow's sigma = 0.75 default-set-up state (results/seg-wander075/s0's final
+# state, seed 1; granflow simulate --from, early_stop false, tangential springs restarted from
+# zero) for 900 time units (results/seg-lammps075, 2438 s wall, 2979 s CPU on one core beside
+# another run; its expectation written down first in prediction.md).  Over t >= 100 (40
+# windows of 20): the mean Ps, its autocorrelated stderr, the sd of 60-unit means (relative,
+# and times sqrt(N): C), the windows' autocorrelation time, how far 60-unit means scatter
+# beyond their own stderrs -- against granflow's two continued runs of SEGREGATION_DEFAULT_WANDER
+# (means 10.63 +- 0.33, 10.48 +- 0.27; C 1.54, 1.70; autocorrelation 80, 40; 2.65x, 2.00x).
+# LAMMPS wanders as granflow does: C 1.38 against the 1.63 granflow assumes (0.84x, within
+# the +-30 % that 13 means allow), mean 1.0 and 0.7 combined stderrs below granflow's.  The
+# 5 % trend rule flags 5, 20, 52 % of its 4-, 6-, 10-window stretches, the wander rule 0, 0,
+# 6.5 % (run after the multiple 3 was chosen: held out).
+SEGREGATION_WANDER_LAMMPS = dict(
+    n_flow=284, t=(100.0, 900.0), Ps=10.147, stderr=0.356, sd_60=0.829, rel_sd_60=0.0817,
+    C_60=1.376, acf_time=80.0, sem_ratio_60=2.70, wall_s=2438.0, cpu_s=2979.0,
+    trend_flags={4: (37, 2, 2, 0, 0), 6: (35, 7, 6, 0, 0), 10: (31, 16, 8, 2, 2)})
+
+
 def segregation_seed_scatter() -> dict:
     """sigma -> (steady runs, their standard deviation, rms of their windows' stderrs, ratio,
     ratio against their stderrs with the wander at their number of particles: the per-run
