@@ -46,8 +46,7 @@ def replay(t_start, Ps, *, n_flow: float, t_from: float, windows=(4, 6, 10),
     is still the mean of the windows from ``t_from`` on.  Returns n -> dict(stretches, flags_5,
     flags_wander, toward_5, toward_wander: flags pointing towards the long mean), and the long
     mean under ``"mean"``."""
-    from granflow.campaign.collect import (PS_TREND_P, PS_TREND_TOLERANCE, ps_still_moving,
-                                           ps_trend_tolerance)
+    from granflow.campaign.collect import ps_still_moving, ps_trend_tolerance
     from granflow.fitting.segregation import wander_sd
     from granflow.steady.timeseries import trend_test
 
@@ -74,7 +73,7 @@ def replay(t_start, Ps, *, n_flow: float, t_from: float, windows=(4, 6, 10),
             m = float(x[i:i + n].mean())
             toward = bool(np.sign(tr.relative_change) == np.sign(mean - m))
             extra = {"Ps_trend_change": tr.relative_change, "Ps_trend_p": tr.p_value}
-            old = bool(tr.p_value < PS_TREND_P and abs(tr.relative_change) > PS_TREND_TOLERANCE)
+            old = ps_still_moving(extra)  # no tolerance in it: the 5 % rule
             new = ps_still_moving(dict(extra, Ps_trend_tolerance=ps_trend_tolerance(
                 m, wander_sd(m, n_flow))))
             rows.append((old, new, toward))

@@ -188,9 +188,9 @@ def count_as_drifting(fit):
     return fit.replace(
         selection=fit.selection + (
             f"; Ps still moving over its windows ({100 * fit.extra['Ps_trend_change']:+.1f} %"
-            f", trend p = {fit.extra['Ps_trend_p']:.2g}, beyond the "
-            f"{100 * fit.extra.get('Ps_trend_tolerance', PS_TREND_TOLERANCE):.1f} % its wander"
-            " allows): counted as drifting"),
+            f", trend p = {fit.extra['Ps_trend_p']:.2g}, beyond its tolerance of "
+            f"{100 * fit.extra.get('Ps_trend_tolerance', PS_TREND_TOLERANCE):.1f} %): counted "
+            "as drifting"),
         extra=dict(fit.extra, segregation_state="drifting", Ps_still_moving=True))
 
 
